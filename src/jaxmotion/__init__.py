@@ -1,0 +1,65 @@
+"""jaxmotion: automatic motion synthesis for animated characters, in JAX.
+
+Bodies (mass-spring lattices), controllers with a handful of parameters, objectives that
+score a motion, and stochastic searches that find good parameters; the simulator runs on
+diffrax, vectorised with `vmap` and differentiable. Fitness is always maximised.
+"""
+
+from . import lattices as lattices
+from ._body.base import AbstractBody as AbstractBody
+from ._body.base import AbstractDynamics as AbstractDynamics
+from ._body.lattice import Lattice as Lattice
+from ._control.base import AbstractController as AbstractController
+from ._control.base import AbstractControllerSpace as AbstractControllerSpace
+from ._control.deformations import REFLEX_NAMES as REFLEX_NAMES
+from ._control.deformations import deform as deform
+from ._control.regimes import PERTURBATIONS as PERTURBATIONS
+from ._control.regimes import Regimes as Regimes
+from ._control.regimes import RegimesSpace as RegimesSpace
+from ._devices import use_cpu_cores as use_cpu_cores
+from ._objective import terms as _builtin_terms  # noqa: F401  (registers the built-in terms)
+from ._objective.registry import Objective as Objective
+from ._objective.registry import register_term as register_term
+from ._objective.registry import terms as objective_terms
+from ._search.hill_climb import HillClimbState as HillClimbState
+from ._search.hill_climb import ParallelHillClimb as ParallelHillClimb
+from ._search.hill_climb import SearchResult as SearchResult
+from ._search.hill_climb import parallel_hill_climb as parallel_hill_climb
+from ._search.history import History as History
+from ._sim.simulate import simulate as simulate
+from ._sim.trajectory import Observation as Observation
+from ._sim.trajectory import Trajectory as Trajectory
+from ._task import Task as Task
+from ._world import World as World
+from ._world import floor_force as floor_force
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "PERTURBATIONS",
+    "REFLEX_NAMES",
+    "AbstractBody",
+    "AbstractController",
+    "AbstractControllerSpace",
+    "AbstractDynamics",
+    "HillClimbState",
+    "History",
+    "Lattice",
+    "Objective",
+    "Observation",
+    "ParallelHillClimb",
+    "Regimes",
+    "RegimesSpace",
+    "SearchResult",
+    "Task",
+    "Trajectory",
+    "World",
+    "deform",
+    "floor_force",
+    "lattices",
+    "objective_terms",
+    "parallel_hill_climb",
+    "register_term",
+    "simulate",
+    "use_cpu_cores",
+]

@@ -1,0 +1,317 @@
+"""Mass-spring lattices (the first paper's bodies)."""
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
+
+from .._sim.trajectory import Observation
+from .._world import World, floor_force
+from ._frame import polar_rotation
+from .base import AbstractBody, AbstractDynamics
+
+
+def _concrete(*xs) -> bool:
+    return not any(isinstance(x, jax.core.Tracer) for x in xs)
+
+
+def _fmt(values) -> str:
+    return "(" + ", ".join(f"{float(v):g}" for v in values) + ")"
+
+
+class Lattice(AbstractBody):
+    """A 3D mass-spring lattice: point masses joined by damped linear springs.
+
+    Each spring pulls its two masses together with the tension
+    `k (length - rest_length) + d * d(length)/dt` along the line between them (tension
+    positive; the damping term resists any change of length, so it only ever dissipates
+    energy). Actuation changes the rest lengths; the first paper's reflexes compute them from
+    a deformed copy of the rest shape.
+
+    **Fields:**
+
+    - `points`: `(num_masses, 3)` rest shape, which is also the pose at t = 0 (builders put
+        the lowest mass on the floor, z = 0, and the centre of mass above the origin).
+    - `masses`: `(num_masses,)` masses in kg.
+    - `springs`: `(num_springs, 2)` integer index pairs.
+    - `stiffness`, `damping`, `rest_lengths`: `(num_springs,)` per-spring constants.
+    - `frame`: `(3, 3)` the lattice-centric frame; columns are the forward, left and up axes
+        in world coordinates at rest (right-handed, orthonormal). The reflexes deform along
+        these axes and the objectives measure "forward" and "upright" with them.
+    - `name`: a label for plots and summaries.
+
+    Build one with `jaxmotion.lattices.cube()`, `pyramid()`, `chair()` or `from_points()`.
+    Constructing a `Lattice` checks it: a spring to a missing mass, a duplicate spring, a
+    zero-length spring, a non-positive mass or a non-orthonormal frame is a `ValueError`
+    naming the spring or mass and its value.
+    """
+
+    points: Float[Array, "num_masses 3"]
+    masses: Float[Array, " num_masses"]
+    springs: Int[Array, "num_springs 2"]
+    stiffness: Float[Array, " num_springs"]
+    damping: Float[Array, " num_springs"]
+    rest_lengths: Float[Array, " num_springs"]
+    frame: Float[Array, "3 3"]
+    name: str = eqx.field(static=True)
+
+    def __init__(
+        self,
+        points: Float[ArrayLike, "num_masses 3"],
+        springs: Int[ArrayLike, "num_springs 2"],
+        *,
+        masses: float | Float[ArrayLike, " num_masses"] = 1.0,
+        stiffness: float | Float[ArrayLike, " num_springs"] = 2000.0,
+        damping: float | Float[ArrayLike, " num_springs"] = 20.0,
+        rest_lengths: Float[ArrayLike, " num_springs"] | None = None,
+        frame: Float[ArrayLike, "3 3"] | None = None,
+        name: str = "lattice",
+    ):
+        if _concrete(points, springs, masses, stiffness, damping, rest_lengths, frame):
+            points, springs, masses, stiffness, damping, rest_lengths, frame = _validated(
+                points, springs, masses, stiffness, damping, rest_lengths, frame
+            )
+        self.points = jnp.asarray(points, dtype=float)
+        self.springs = jnp.asarray(springs, dtype=jnp.int32)
+        n, s = self.points.shape[0], self.springs.shape[0]
+        self.masses = jnp.broadcast_to(jnp.asarray(masses, dtype=float), (n,))
+        self.stiffness = jnp.broadcast_to(jnp.asarray(stiffness, dtype=float), (s,))
+        self.damping = jnp.broadcast_to(jnp.asarray(damping, dtype=float), (s,))
+        if rest_lengths is None:
+            d = self.points[self.springs[:, 1]] - self.points[self.springs[:, 0]]
+            rest_lengths = jnp.sqrt(jnp.sum(d * d, axis=-1))
+        self.rest_lengths = jnp.asarray(rest_lengths, dtype=float)
+        self.frame = jnp.eye(3) if frame is None else jnp.asarray(frame, dtype=float)
+        self.name = str(name)
+
+    @property
+    def num_masses(self) -> int:
+        return self.points.shape[0]
+
+    @property
+    def num_springs(self) -> int:
+        return self.springs.shape[0]
+
+    @property
+    def num_points(self) -> int:
+        return self.points.shape[0]
+
+    @property
+    def total_mass(self) -> Float[Array, ""]:
+        return jnp.sum(self.masses)
+
+    @property
+    def com(self) -> Float[Array, "3"]:
+        """Centre of mass of the rest shape."""
+        return jnp.sum(self.points * self.masses[:, None], axis=0) / self.total_mass
+
+    @property
+    def extent(self) -> Float[Array, "3"]:
+        """Size of the rest shape along the frame's forward, left and up axes."""
+        local = (self.points - self.com) @ self.frame
+        return jnp.max(local, axis=0) - jnp.min(local, axis=0)
+
+    @property
+    def body_length(self) -> Float[Array, ""]:
+        """Size of the rest shape along its forward axis (the unit of "body lengths")."""
+        return self.extent[0]
+
+    def rest_length_matrix(self, shape: Float[ArrayLike, "num_masses 3"] | None = None):
+        """Dense `(num_masses, num_masses)` table of rest lengths for a deformed rest shape.
+
+        Each spring's rest length is scaled by how much the deformation stretches the line
+        between its masses (`rest_length * |p'_j - p'_i| / |p_j - p_i|`), so the identity
+        deformation gives back `rest_lengths` exactly, even for prestressed lattices. Entries
+        of pairs without a spring are 1 (they are never used).
+        """
+        i, j = self.springs[:, 0], self.springs[:, 1]
+        rest = self.rest_lengths
+        if shape is not None:
+            shape = jnp.asarray(shape)
+            d_new = shape[j] - shape[i]
+            d_old = self.points[j] - self.points[i]
+            ratio = jnp.sqrt(jnp.sum(d_new * d_new, -1) / jnp.sum(d_old * d_old, -1))
+            rest = rest * ratio
+        n = self.num_masses
+        table = jnp.ones((n, n), dtype=rest.dtype)
+        return table.at[i, j].set(rest).at[j, i].set(rest)
+
+    def initial_state(self):
+        x = jnp.transpose(self.points)
+        return x, jnp.zeros_like(x)
+
+    def dynamics(self) -> "LatticeDynamics":
+        n = self.num_masses
+        i, j = self.springs[:, 0], self.springs[:, 1]
+        zeros = jnp.zeros((n, n), dtype=self.points.dtype)
+        stiffness = zeros.at[i, j].set(self.stiffness).at[j, i].set(self.stiffness)
+        damping = zeros.at[i, j].set(self.damping).at[j, i].set(self.damping)
+        no_spring = jnp.ones((n, n), dtype=self.points.dtype).at[i, j].set(0.0).at[j, i].set(0.0)
+        rest_rel = jnp.transpose(self.points - self.com)
+        return LatticeDynamics(
+            masses=self.masses,
+            stiffness=stiffness,
+            damping=damping,
+            rest=self.rest_length_matrix(),
+            no_spring=no_spring,
+            rest_rel=rest_rel,
+            frame0=self.frame,
+        )
+
+
+class LatticeDynamics(AbstractDynamics):
+    """A lattice prepared for simulation: springs as dense `(n, n)` tables.
+
+    State layout: positions and velocities as `(3, num_masses)` arrays (components first,
+    so the batched step works on whole component vectors; see `perf-lab`).
+    """
+
+    masses: Float[Array, " n"]
+    stiffness: Float[Array, "n n"]
+    damping: Float[Array, "n n"]
+    rest: Float[Array, "n n"]
+    no_spring: Float[Array, "n n"]
+    rest_rel: Float[Array, "3 n"]
+    frame0: Float[Array, "3 3"]
+
+    supports_batch_last: ClassVar[bool] = True
+
+    def rates(self, state, actuation, world: World):
+        x, v = state
+        # Any axes after (3, n) are batch axes (the fast path's batch-last layout): the
+        # lattice's own tables get matching trailing singleton axes and broadcast.
+        extra = x.ndim - 2
+        own = lambda a: a.reshape(a.shape + (1,) * extra)
+        rest = own(self.rest) if actuation is None else actuation
+        stiffness, damping, no_spring = own(self.stiffness), own(self.damping), own(self.no_spring)
+        px, py, pz = x[0], x[1], x[2]
+        vx, vy, vz = v[0], v[1], v[2]
+        # Pair tables: entry [i, j] is (mass j) - (mass i).
+        dx = px[None] - px[:, None]
+        dy = py[None] - py[:, None]
+        dz = pz[None] - pz[:, None]
+        dvx = vx[None] - vx[:, None]
+        dvy = vy[None] - vy[:, None]
+        dvz = vz[None] - vz[:, None]
+        # `no_spring` keeps the diagonal and unconnected pairs away from 0/0; their stiffness
+        # and damping are zero, so they exert nothing.
+        length = jnp.sqrt(dx * dx + dy * dy + dz * dz + no_spring)
+        inv = 1.0 / length
+        stretch_rate = (dvx * dx + dvy * dy + dvz * dz) * inv
+        tension_per_length = (stiffness * (length - rest) + damping * stretch_rate) * inv
+        n = px.shape[0]
+        # Explicit sums over partners: they fuse into the elementwise loops when batched.
+        fx = sum(tension_per_length[:, k] * dx[:, k] for k in range(n))
+        fy = sum(tension_per_length[:, k] * dy[:, k] for k in range(n))
+        fz = sum(tension_per_length[:, k] * dz[:, k] for k in range(n))
+        cx, cy, cz = floor_force(world, px, py, pz, vx, vy, vz)
+        inv_m = own(1.0 / self.masses)
+        ax = (fx + cx) * inv_m
+        ay = (fy + cy) * inv_m
+        az = (fz + cz) * inv_m - world.gravity
+        return v, jnp.stack([ax, ay, az])
+
+    def observe(self, positions, world: World) -> Observation:
+        x = positions
+        total = jnp.sum(self.masses)
+        com = jnp.sum(x * self.masses, axis=1) / total
+        rel = x - com[:, None]
+        h = (rel * self.masses) @ jnp.transpose(self.rest_rel)
+        frame = polar_rotation(h) @ self.frame0
+        contact = (x[2] < 0) if world.floor else jnp.zeros(x.shape[1], dtype=bool)
+        return Observation(points=jnp.transpose(x), com=com, frame=frame, contact=contact)
+
+
+def _validated(points, springs, masses, stiffness, damping, rest_lengths, frame):
+    """Check a lattice's arrays; raise `ValueError` naming the offending entry."""
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 2:
+        raise ValueError(
+            f"Lattice points must be an array of shape (num_masses, 3) with at least 2 masses; "
+            f"got shape {pts.shape}"
+        )
+    n = pts.shape[0]
+    bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
+    if bad.size:
+        k = int(bad[0])
+        raise ValueError(f"mass {k} has a non-finite position {_fmt(pts[k])}")
+    spr = np.asarray(springs)
+    if spr.ndim != 2 or spr.shape[1] != 2 or spr.shape[0] < 1:
+        raise ValueError(
+            f"Lattice springs must be an array of shape (num_springs, 2) with at least one "
+            f"spring; got shape {spr.shape}"
+        )
+    if not np.issubdtype(spr.dtype, np.integer):
+        if not np.all(np.isfinite(spr)) or np.any(spr != np.round(spr)):
+            raise ValueError(f"Lattice springs must be integer mass indices; got {spr.tolist()}")
+        spr = spr.astype(np.int64)
+    seen: dict[tuple[int, int], int] = {}
+    for s, (a, b) in enumerate(spr.tolist()):
+        for m in (a, b):
+            if not 0 <= m < n:
+                raise ValueError(
+                    f"spring {s} = ({a}, {b}) refers to mass {m}, which does not exist: the "
+                    f"lattice has {n} masses, numbered 0 to {n - 1}"
+                )
+        if a == b:
+            raise ValueError(f"spring {s} = ({a}, {b}) connects mass {a} to itself")
+        key = (min(a, b), max(a, b))
+        if key in seen:
+            t = seen[key]
+            raise ValueError(
+                f"spring {s} = ({a}, {b}) duplicates spring {t} = {tuple(spr[t].tolist())}"
+            )
+        seen[key] = s
+    ns = spr.shape[0]
+
+    def per(name, quantity, value, count, what, *, positive):
+        arr = np.asarray(value, dtype=float)
+        try:
+            arr = np.broadcast_to(arr, (count,))
+        except ValueError:
+            raise ValueError(
+                f"Lattice {name} must be a number or an array of {count} values (one per "
+                f"{what}); got shape {np.shape(value)}"
+            ) from None
+        bad = np.flatnonzero(~np.isfinite(arr) | ((arr <= 0) if positive else (arr < 0)))
+        if bad.size:
+            k = int(bad[0])
+            rule = "> 0" if positive else ">= 0"
+            label = f"spring {k} = {tuple(spr[k].tolist())}" if what == "spring" else f"mass {k}"
+            raise ValueError(f"{label} has {quantity} {arr[k]:g}; allowed: a finite number {rule}")
+        return arr
+
+    m = per("masses", "mass", masses, n, "mass", positive=True)
+    k = per("stiffness", "stiffness", stiffness, ns, "spring", positive=False)
+    d = per("damping", "damping", damping, ns, "spring", positive=False)
+    lengths = np.linalg.norm(pts[spr[:, 1]] - pts[spr[:, 0]], axis=1)
+    zero = np.flatnonzero(lengths <= 1e-9 * max(1.0, float(np.ptp(pts))))
+    if zero.size:
+        s = int(zero[0])
+        a, b = spr[s].tolist()
+        raise ValueError(
+            f"spring {s} = ({a}, {b}) has zero length: masses {a} and {b} are both at "
+            f"{_fmt(pts[a])}"
+        )
+    if rest_lengths is not None:
+        rl = per("rest_lengths", "rest length", rest_lengths, ns, "spring", positive=True)
+    else:
+        rl = None
+    if frame is not None:
+        f = np.asarray(frame, dtype=float)
+        if f.shape != (3, 3) or not np.allclose(f.T @ f, np.eye(3), atol=1e-6):
+            raise ValueError(
+                f"Lattice frame must be a 3x3 orthonormal matrix (columns forward, left, up); "
+                f"got {f.tolist()}"
+            )
+        if np.linalg.det(f) < 0:
+            raise ValueError(
+                "Lattice frame must be right-handed (forward x left = up); got a reflection "
+                f"{f.tolist()}"
+            )
+    else:
+        f = None
+    return pts, spr, m, k, d, rl, f

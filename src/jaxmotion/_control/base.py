@@ -1,0 +1,55 @@
+"""Controllers and the families (spaces) that sample and perturb them."""
+
+import abc
+from typing import Any, ClassVar, Generic, TypeVar
+
+import equinox as eqx
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from .._body.base import AbstractBody
+
+
+class AbstractController(eqx.Module):
+    """A controller: an equinox Module whose array fields are its parameters.
+
+    A simulation first calls `prepare(body)` once (outside the time loop) for whatever can
+    be computed ahead, then `actuation(t, plan)` at every step; what it returns is what the
+    body's dynamics take as actuation (for lattices, a table of spring rest lengths).
+
+    A subclass that sets `supports_batch_last = True` promises that `actuation` also works on
+    a batch of controllers stacked with the batch as the *last* axis of every array field
+    (and of the plan): index only leading axes and let elementwise arithmetic broadcast. The
+    fast batched path then calls it once for the whole batch; otherwise it is `vmap`ped.
+    """
+
+    supports_batch_last: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def prepare(self, body: AbstractBody) -> Any:
+        """Per-simulation precomputation (a pytree), e.g. the rest lengths of every regime."""
+
+    @abc.abstractmethod
+    def actuation(self, t: Float[Array, ""], plan: Any) -> Any:
+        """The actuation at time `t`."""
+
+
+C = TypeVar("C", bound=AbstractController)
+
+
+class AbstractControllerSpace(eqx.Module, Generic[C]):
+    """A controller family: knows how to draw random controllers and how to perturb one, with
+    the distributions of the paper it comes from. Both act on one controller; `vmap` them over
+    `jax.random.split(key, n)` for a population."""
+
+    @abc.abstractmethod
+    def sample(self, *, key: PRNGKeyArray) -> C:
+        """A random controller."""
+
+    @abc.abstractmethod
+    def perturb(self, controller: C, *, key: PRNGKeyArray) -> C:
+        """A perturbed copy of `controller`."""
+
+    @property
+    @abc.abstractmethod
+    def family(self) -> str:
+        """The family's name as configs and saved controllers spell it (e.g. `"regimes"`)."""

@@ -1,0 +1,282 @@
+"""Time-based regime controllers of the first paper (section 2.2) and their search space
+(section 2.3, Table 2)."""
+
+import math
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
+
+from .._body.lattice import Lattice
+from .base import AbstractController, AbstractControllerSpace
+from .deformations import DEFAULT_AMPLITUDES, deform
+
+
+def _check_amplitudes(amplitudes, owner: str) -> tuple[float, float, float, float]:
+    try:
+        amps = tuple(float(a) for a in amplitudes)
+    except (TypeError, ValueError):
+        amps = ()
+    if (
+        len(amps) != 4
+        or not all(math.isfinite(a) and a >= 0 for a in amps)
+        or max(amps[0], amps[2]) >= 1
+    ):
+        raise ValueError(
+            f"{owner}.amplitudes = {amplitudes!r}; allowed: four numbers (scale, shear, splay, "
+            "twist) >= 0, with scale and splay < 1 so no reflex inverts the lattice"
+        )
+    return amps  # type: ignore[return-value]
+
+
+class Regimes(AbstractController):
+    """A time-based controller of C regimes (first paper, section 2.2).
+
+    Time runs in periods of `t_per`; regime `c` owns every phase `t mod t_per` closer to
+    `times[c]` than to any other regime time (ties go to the lower index), and during it the
+    lattice's spring rest lengths are those of its rest shape deformed by reflex `reflexes[c]`
+    (see `jaxmotion.REFLEX_NAMES` and `deform`) with coefficient `coefficients[c]`, about the
+    centre of mass and along the lattice-centric axes. With `t_per >= duration` the sequence
+    is not periodic.
+
+    **Fields:** `times` `(C,)` in `[0, t_per]`; `reflexes` `(C,)` integers in `0..11`;
+    `coefficients` `(C,)` in `[-1, 1]`; `t_per` the period (s); `amplitudes` the
+    full-strength size of the four kinds of deformation (scale, shear, splay, twist).
+    """
+
+    times: Float[Array, " C"]
+    reflexes: Int[Array, " C"]
+    coefficients: Float[Array, " C"]
+    t_per: Float[Array, ""]
+    amplitudes: tuple[float, float, float, float] = eqx.field(static=True)
+
+    supports_batch_last: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        times: Float[ArrayLike, " C"],
+        reflexes: Int[ArrayLike, " C"],
+        coefficients: Float[ArrayLike, " C"],
+        t_per: float | Float[ArrayLike, ""],
+        amplitudes: tuple[float, float, float, float] = DEFAULT_AMPLITUDES,
+    ):
+        if not any(isinstance(x, jax.core.Tracer) for x in (times, reflexes, coefficients, t_per)):
+            _check_regimes(times, reflexes, coefficients, t_per)
+        self.times = jnp.asarray(times, dtype=float)
+        self.reflexes = jnp.asarray(reflexes, dtype=jnp.int32)
+        self.coefficients = jnp.asarray(coefficients, dtype=float)
+        self.t_per = jnp.asarray(t_per, dtype=float)
+        self.amplitudes = _check_amplitudes(amplitudes, "Regimes")
+
+    @property
+    def num_regimes(self) -> int:
+        return self.times.shape[0]
+
+    def shapes(self, lattice: Lattice) -> Float[Array, "C n 3"]:
+        """The deformed rest shape of every regime, in world coordinates."""
+        com = lattice.com
+        local = (lattice.points - com) @ lattice.frame
+        deformed = jax.vmap(lambda r, c: deform(local, r, c, self.amplitudes))(
+            self.reflexes, self.coefficients
+        )
+        return com + deformed @ jnp.transpose(lattice.frame)
+
+    def prepare(self, body: Lattice) -> Float[Array, "C n n"]:
+        if not isinstance(body, Lattice):
+            raise TypeError(f"Regimes controls mass-spring lattices; got a {type(body).__name__}")
+        return jax.vmap(body.rest_length_matrix)(self.shapes(body))
+
+    def active(self, t: Float[Array, ""]) -> Int[Array, ""]:
+        """Index of the regime active at time `t`."""
+        phase = jnp.mod(t, self.t_per)
+        return jnp.argmin(jnp.abs(phase - self.times))
+
+    def actuation(self, t, plan: Float[Array, "C n n"]) -> Float[Array, "n n"]:
+        phase = jnp.mod(t, self.t_per)
+        # A chain of selects rather than an index: under vmap an index per controller would
+        # become a gather, which is slow on CPU; selects stay elementwise.
+        best = jnp.abs(phase - self.times[0])
+        table = plan[0]
+        for c in range(1, self.num_regimes):
+            dist = jnp.abs(phase - self.times[c])
+            nearer = dist < best
+            best = jnp.where(nearer, dist, best)
+            table = jnp.where(nearer, plan[c], table)
+        return table
+
+
+def _check_regimes(times, reflexes, coefficients, t_per) -> None:
+    t = np.asarray(times, dtype=float)
+    r = np.asarray(reflexes)
+    a = np.asarray(coefficients, dtype=float)
+    tp = np.asarray(t_per, dtype=float)
+    if t.ndim != 1 or t.shape != r.shape or t.shape != a.shape or t.size < 1:
+        raise ValueError(
+            "Regimes needs times, reflexes and coefficients of the same shape (C,), C >= 1; got "
+            f"shapes {t.shape}, {r.shape}, {a.shape}"
+        )
+    if tp.shape != () or not np.isfinite(tp) or tp <= 0:
+        raise ValueError(f"Regimes.t_per = {t_per!r}; allowed: a number > 0")
+    for c in range(t.size):
+        if not (np.isfinite(t[c]) and 0 <= t[c] <= tp):
+            raise ValueError(f"regime {c} has time {t[c]:g}; allowed: 0 <= time <= t_per = {tp:g}")
+        if r[c] != np.round(r[c]) or not 0 <= r[c] <= 11:
+            raise ValueError(f"regime {c} has reflex {r[c]}; allowed: an integer 0..11")
+        if not (np.isfinite(a[c]) and -1 <= a[c] <= 1):
+            raise ValueError(
+                f"regime {c} has coefficient {a[c]:g}; allowed: -1 <= coefficient <= 1"
+            )
+
+
+PERTURBATIONS: tuple[tuple[float, str], ...] = (
+    (0.32, "new reflex number, one regime"),
+    (0.08, "new reflex number, every regime"),
+    (0.10, "new reflex coefficient, one regime"),
+    (0.02, "new reflex coefficient, every regime"),
+    (0.22, "adjust reflex coefficient, one regime"),
+    (0.06, "adjust reflex coefficient, every regime"),
+    (0.05, "new regime time, one regime"),
+    (0.01, "new regime time, every regime"),
+    (0.11, "adjust regime time, one regime"),
+    (0.03, "adjust regime time, every regime"),
+)
+"""The first paper's Table 2: (probability, perturbation), in the order of the table."""
+
+ADJUST = 0.1
+""""Adjust" multiplies a value by `1 + u`, `u` uniform in (-ADJUST, ADJUST): under 10%."""
+
+
+class RegimesSpace(AbstractControllerSpace[Regimes]):
+    """The family of `Regimes` controllers with `num_regimes` regimes and period `t_per`, with
+    the first paper's sampling and perturbation (section 2.3, Table 2).
+
+    - **Sampling:** regime times uniform in `[0, t_per]`, reflex numbers uniform in `0..11`,
+        coefficients from the arcsine distribution on `[-1, 1]` (`sin(pi (u - 1/2))`, `u`
+        uniform): its density grows towards the extremes, favouring exaggerated, purposeful
+        movements over twitches, as the paper asks.
+    - **Perturbation:** one of the ten operators of Table 2 (`PERTURBATIONS`), chosen with the
+        table's probabilities. "Pick a new value" draws from the sampling distribution above
+        (it may draw the old value again, as in the paper); "adjust" multiplies the value by a
+        random factor `1 + u`, `|u| < 10%`, and clips it to its range.
+    """
+
+    num_regimes: int = eqx.field(static=True)
+    t_per: float = eqx.field(static=True)
+    amplitudes: tuple[float, float, float, float] = eqx.field(static=True)
+
+    def __init__(
+        self,
+        num_regimes: int = 4,
+        t_per: float = 1.0,
+        amplitudes: tuple[float, float, float, float] = DEFAULT_AMPLITUDES,
+    ):
+        if isinstance(num_regimes, bool) or not isinstance(num_regimes, int) or num_regimes < 1:
+            raise ValueError(
+                f"RegimesSpace.num_regimes = {num_regimes!r}; allowed: an integer >= 1"
+            )
+        try:
+            tp = float(t_per)
+        except (TypeError, ValueError):
+            tp = float("nan")
+        if not (math.isfinite(tp) and tp > 0):
+            raise ValueError(f"RegimesSpace.t_per = {t_per!r}; allowed: a number > 0 (seconds)")
+        self.num_regimes = num_regimes
+        self.t_per = tp
+        self.amplitudes = _check_amplitudes(amplitudes, "RegimesSpace")
+
+    @property
+    def family(self) -> str:
+        return "regimes"
+
+    def _times(self, key, shape=()):
+        return jr.uniform(key, shape, minval=0.0, maxval=self.t_per)
+
+    @staticmethod
+    def _reflexes(key, shape=()):
+        return jr.randint(key, shape, 0, 12, dtype=jnp.int32)
+
+    @staticmethod
+    def _coefficients(key, shape=()):
+        return jnp.sin(jnp.pi * (jr.uniform(key, shape) - 0.5))
+
+    def sample(self, *, key: PRNGKeyArray) -> Regimes:
+        time_key, reflex_key, coefficient_key = jr.split(key, 3)
+        c = self.num_regimes
+        return Regimes(
+            times=self._times(time_key, (c,)),
+            reflexes=self._reflexes(reflex_key, (c,)),
+            coefficients=self._coefficients(coefficient_key, (c,)),
+            t_per=jnp.asarray(self.t_per, dtype=float),
+            amplitudes=self.amplitudes,
+        )
+
+    def choose_perturbation(self, *, key: PRNGKeyArray) -> Int[Array, ""]:
+        """Index into `PERTURBATIONS`, drawn with the probabilities of Table 2."""
+        p = jnp.asarray([prob for prob, _ in PERTURBATIONS])
+        return jr.choice(key, len(PERTURBATIONS), p=p)
+
+    def apply_perturbation(
+        self, op: Int[Array, ""], controller: Regimes, *, key: PRNGKeyArray
+    ) -> Regimes:
+        """Apply perturbation number `op` (an index into `PERTURBATIONS`) to `controller`."""
+        regime_key, factor_key, reflex_key, coefficient_key, time_key = jr.split(key, 5)
+        c = self.num_regimes
+        one = jnp.arange(c) == jr.randint(regime_key, (), 0, c)
+        every = jnp.ones(c, dtype=bool)
+        factor = 1.0 + jr.uniform(factor_key, (c,), minval=-ADJUST, maxval=ADJUST)
+        new_reflexes = self._reflexes(reflex_key, (c,))
+        new_coefficients = self._coefficients(coefficient_key, (c,))
+        new_times = self._times(time_key, (c,))
+        adjusted_coefficients = jnp.clip(controller.coefficients * factor, -1.0, 1.0)
+        adjusted_times = jnp.clip(controller.times * factor, 0.0, self.t_per)
+
+        def reflexes(mask):
+            return lambda: (
+                jnp.where(mask, new_reflexes, controller.reflexes),
+                controller.coefficients,
+                controller.times,
+            )
+
+        def coefficients(mask, values):
+            return lambda: (
+                controller.reflexes,
+                jnp.where(mask, values, controller.coefficients),
+                controller.times,
+            )
+
+        def times(mask, values):
+            return lambda: (
+                controller.reflexes,
+                controller.coefficients,
+                jnp.where(mask, values, controller.times),
+            )
+
+        branches = [
+            reflexes(one),
+            reflexes(every),
+            coefficients(one, new_coefficients),
+            coefficients(every, new_coefficients),
+            coefficients(one, adjusted_coefficients),
+            coefficients(every, adjusted_coefficients),
+            times(one, new_times),
+            times(every, new_times),
+            times(one, adjusted_times),
+            times(every, adjusted_times),
+        ]
+        r, a, t = jax.lax.switch(op, branches)
+        return Regimes(
+            times=t,
+            reflexes=r,
+            coefficients=a,
+            t_per=controller.t_per,
+            amplitudes=controller.amplitudes,
+        )
+
+    def perturb(self, controller: Regimes, *, key: PRNGKeyArray) -> Regimes:
+        choice_key, apply_key = jr.split(key)
+        op = self.choose_perturbation(key=choice_key)
+        return self.apply_perturbation(op, controller, key=apply_key)

@@ -1,0 +1,192 @@
+"""The built-in objective terms: the first paper's Table 1 and a few more.
+
+Each term is a function of one `Trajectory` (sampled at its save times) and returns a scalar.
+Angles are in radians unless an option says degrees; lengths in metres; times in seconds.
+"""
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._sim.trajectory import Trajectory
+from .registry import register_term
+
+_AXES = {"forward": 0, "left": 1, "up": 2}
+
+
+def _horizontal_unit(v):
+    h = v[..., :2]
+    n = jnp.sqrt(jnp.sum(h * h, axis=-1, keepdims=True))
+    return h / jnp.where(n > 0, n, 1.0)
+
+
+def _increments(frame: Float[Array, "t 3 3"], world: bool) -> Float[Array, "t-1 3"]:
+    """Rotation vectors between consecutive frames: in body coordinates (`world=False`) or
+    world coordinates (`world=True`). Smooth (differentiable) even at zero rotation."""
+    a, b = frame[:-1], frame[1:]
+    if world:
+        rel = b @ jnp.swapaxes(a, -1, -2)
+    else:
+        rel = jnp.swapaxes(a, -1, -2) @ b
+    skew = 0.5 * (rel - jnp.swapaxes(rel, -1, -2))
+    vee = jnp.stack([skew[..., 2, 1], skew[..., 0, 2], skew[..., 1, 0]], axis=-1)
+    s2 = jnp.sum(vee * vee, axis=-1)
+    c = 0.5 * (jnp.trace(rel, axis1=-2, axis2=-1) - 1.0)
+    small = s2 < 1e-12
+    s = jnp.sqrt(jnp.where(small, 1.0, s2))
+    factor = jnp.where(small, 1.0 + s2 / 6.0, jnp.arctan2(s, c) / s)
+    return vee * factor[..., None]
+
+
+@register_term("forward")
+def forward(trajectory: Trajectory) -> Float[Array, ""]:
+    """Final horizontal displacement of the centre of mass along the body's initial forward
+    direction (m; Table 1's primary term for walking and bounding)."""
+    direction = _horizontal_unit(trajectory.frame[0, :, 0])
+    shift = trajectory.com[-1, :2] - trajectory.com[0, :2]
+    return jnp.dot(shift, direction)
+
+
+@register_term("sideways")
+def sideways(trajectory: Trajectory) -> Float[Array, ""]:
+    """Absolute final horizontal displacement of the centre of mass along the body's initial
+    left axis (m)."""
+    direction = _horizontal_unit(trajectory.frame[0, :, 1])
+    shift = trajectory.com[-1, :2] - trajectory.com[0, :2]
+    return jnp.abs(jnp.dot(shift, direction))
+
+
+@register_term("distance")
+def distance(trajectory: Trajectory) -> Float[Array, ""]:
+    """Final horizontal displacement of the centre of mass in any direction (m)."""
+    shift = trajectory.com[-1, :2] - trajectory.com[0, :2]
+    return jnp.sqrt(jnp.sum(shift * shift) + 1e-12)
+
+
+@register_term("max_height")
+def max_height(trajectory: Trajectory) -> Float[Array, ""]:
+    """Maximum height of the centre of mass above its starting height (m; Table 1's primary
+    term for jumping)."""
+    return jnp.max(trajectory.com[:, 2]) - trajectory.com[0, 2]
+
+
+@register_term("min_contacts")
+def min_contacts(trajectory: Trajectory) -> Float[Array, ""]:
+    """Minimum number of points touching the floor at any saved time after the start
+    (Table 1: reward it to keep the body on the ground)."""
+    return jnp.min(jnp.sum(trajectory.contact[1:], axis=-1)).astype(float)
+
+
+def _interval_lengths(trajectory: Trajectory):
+    return jnp.diff(trajectory.ts)
+
+
+@register_term("contact_time")
+def contact_time(trajectory: Trajectory) -> Float[Array, ""]:
+    """Total time during which any point touches the floor (s; Table 1: penalise it to keep
+    the body airborne). Counted per save interval, by the contact at its end."""
+    touching = jnp.any(trajectory.contact[1:], axis=-1)
+    return jnp.sum(jnp.where(touching, _interval_lengths(trajectory), 0.0))
+
+
+@register_term("hops")
+def hops(trajectory: Trajectory) -> Float[Array, ""]:
+    """Number of times the body leaves the ground: saved samples where some point touched the
+    floor followed by one where none does."""
+    touching = jnp.any(trajectory.contact[1:], axis=-1)
+    return jnp.sum(touching[:-1] & ~touching[1:]).astype(float)
+
+
+@register_term("on_ground_at_end")
+def on_ground_at_end(trajectory: Trajectory, min_points: int = 1) -> Float[Array, ""]:
+    """1 if at least `min_points` points touch the floor at the final time, else 0."""
+    return (jnp.sum(trajectory.contact[-1]) >= min_points).astype(float)
+
+
+@register_term("rotation")
+def rotation(trajectory: Trajectory, axis: str = "any") -> Float[Array, ""]:
+    """Rotation of the body frame (Table 1's "total rotation of a triplet of point masses
+    about the centre of mass"; the frame is the best-fit rotation of all the masses).
+
+    `axis="any"`: the total angle turned, summed over save intervals whatever the axis
+    (rad, >= 0). `axis="forward"`, `"left"` or `"up"`: the net signed angle turned about that
+    body axis (rad), accumulated from the increments between samples, positive by the
+    right-hand rule. With forward +x, left +y and up +z, pitching nose-down is positive about
+    `"left"`, so a backward somersault is negative about `"left"`, and rolling onto the right
+    side is positive about `"forward"`.
+    """
+    inc = _increments(trajectory.frame, world=False)
+    if axis == "any":
+        return jnp.sum(jnp.sqrt(jnp.sum(inc * inc, axis=-1) + 1e-20))
+    if axis not in _AXES:
+        raise ValueError(f"rotation axis = {axis!r}; allowed: any, forward, left, up")
+    return jnp.sum(inc[:, _AXES[axis]])
+
+
+@register_term("net_yaw")
+def net_yaw(trajectory: Trajectory, signed: bool = False) -> Float[Array, ""]:
+    """Net rotation about the world vertical (rad): the absolute value unless `signed`
+    (then counter-clockwise seen from above is positive). Rewarded by the pirouette."""
+    inc = _increments(trajectory.frame, world=True)
+    total = jnp.sum(inc[:, 2])
+    return total if signed else jnp.abs(total)
+
+
+def _angle_between(a, b):
+    cos = jnp.sum(a * b, axis=-1)
+    return jnp.clip(cos, -1.0, 1.0)
+
+
+@register_term("upright")
+def upright(trajectory: Trajectory, max_degrees: float = 45.0) -> Float[Array, ""]:
+    """1 if the body's up axis ever tilts more than `max_degrees` from vertical, else 0
+    (Table 1's loss of uprightness; give it a negative weight)."""
+    cos_tilt = trajectory.frame[:, 2, 2]
+    return jnp.any(cos_tilt < jnp.cos(jnp.deg2rad(max_degrees))).astype(float)
+
+
+@register_term("tilt")
+def tilt(trajectory: Trajectory) -> Float[Array, ""]:
+    """Largest tilt of the body's up axis from vertical over the motion (rad): a continuous
+    companion of `upright`."""
+    return jnp.arccos(jnp.clip(jnp.min(trajectory.frame[:, 2, 2]), -1.0, 1.0))
+
+
+@register_term("left_right")
+def left_right(trajectory: Trajectory, max_degrees: float = 90.0) -> Float[Array, ""]:
+    """1 if the body's left axis ever turns more than `max_degrees` away from its initial
+    direction (Table 1's loss of left-right orientation), else 0."""
+    left = trajectory.frame[:, :, 1]
+    cos = _angle_between(left, left[0])
+    return jnp.any(cos < jnp.cos(jnp.deg2rad(max_degrees))).astype(float)
+
+
+@register_term("front_facing")
+def front_facing(trajectory: Trajectory, max_degrees: float = 45.0) -> Float[Array, ""]:
+    """1 if the body's heading (its forward axis seen from above) ever turns more than
+    `max_degrees` from its initial heading (Table 1's loss of front-facing direction), else 0.
+    """
+    heading = _horizontal_unit(trajectory.frame[:, :, 0])
+    cos = _angle_between(heading, heading[0])
+    return jnp.any(cos < jnp.cos(jnp.deg2rad(max_degrees))).astype(float)
+
+
+@register_term("asymmetry")
+def asymmetry(trajectory: Trajectory, axis: str = "left") -> Float[Array, ""]:
+    """Average asymmetry of the body about the plane through its centre of mass
+    perpendicular to a body axis (m; Table 1, to promote asymmetric movement).
+
+    Each point is mirrored across the plane in the body frame and compared with its mirror
+    partner (the point nearest to its mirror image at t = 0); the mean distance over points
+    and saved times is the asymmetry. `axis="left"` measures left-right asymmetry.
+    """
+    if axis not in _AXES:
+        raise ValueError(f"asymmetry axis = {axis!r}; allowed: forward, left, up")
+    a = _AXES[axis]
+    rel = trajectory.points - trajectory.com[:, None, :]
+    local = jnp.einsum("tnk,tkj->tnj", rel, trajectory.frame)  # body coordinates
+    flip = jnp.ones(3).at[a].set(-1.0)
+    mirrored = local * flip
+    d0 = mirrored[0][:, None, :] - local[0][None, :, :]
+    partner = jnp.argmin(jnp.sum(d0 * d0, axis=-1), axis=1)
+    gap = mirrored - local[:, partner, :]
+    return jnp.mean(jnp.sqrt(jnp.sum(gap * gap, axis=-1) + 1e-12))

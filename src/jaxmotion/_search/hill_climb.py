@@ -1,0 +1,195 @@
+"""Parallel hill climbing, the first paper's search (Figure 4)."""
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+from jaxtyping import Array, Float, Int, PRNGKeyArray
+
+from .._control.base import AbstractController
+from .._task import Task
+from .history import History
+
+
+class HillClimbState(eqx.Module):
+    """The whole state of a parallel hill climb (one pytree, so it can be checkpointed).
+
+    - `population`: the search set, controllers stacked along a leading axis, best first.
+    - `fitness`: their fitness, descending.
+    - `key`: the PRNG key of the next step.
+    - `step`: how many steps have been taken.
+    - `evaluations`: how many controllers have been evaluated, the initial set included.
+    """
+
+    population: AbstractController
+    fitness: Float[Array, " size"]
+    key: PRNGKeyArray
+    step: Int[Array, ""]
+    evaluations: Int[Array, ""]
+
+
+def _check_positive_int(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ValueError(f"{name} = {value!r}; allowed: an integer >= 1")
+    return int(value)
+
+
+class ParallelHillClimb(eqx.Module):
+    """Parallel hill climbing (first paper, Figure 4), as an init/step pair.
+
+    The search set holds `size` controllers ranked by fitness. Each step draws `batch` members
+    uniformly (with replacement), perturbs each (the family's `perturb`, Table 2 for
+    `Regimes`), evaluates the perturbed copies in one call, inserts them by rank and drops the
+    lowest-ranked, so the set keeps its size. Ties rank the older controller first. With
+    `batch=1` this is exactly the paper's algorithm; a larger batch draws all its members
+    from the set as it was before the step. Fitness is maximised.
+    """
+
+    size: int = eqx.field(static=True)
+    batch: int = eqx.field(static=True)
+
+    def __init__(self, size: int = 100, batch: int = 1):
+        self.size = _check_positive_int("size", size)
+        self.batch = _check_positive_int("batch", batch)
+
+    def init(
+        self, task: Task, *, key: PRNGKeyArray
+    ) -> tuple[HillClimbState, Float[Array, " size"]]:
+        """Draw and evaluate the initial search set. Returns the state and the fitness of
+        the initial controllers in the order they were drawn."""
+        return _init(self, task, key)
+
+    def step(
+        self, task: Task, state: HillClimbState, num_valid: int | Int[Array, ""] | None = None
+    ) -> tuple[HillClimbState, Float[Array, " batch"]]:
+        """One step. Returns the new state and the fitness of this step's `batch` evaluations.
+        Only the first `num_valid` (default all) are inserted; the rest are discarded (used
+        to end a search on an exact evaluation count without a new compilation)."""
+        if num_valid is None:
+            num_valid = self.batch
+        return _step(self, task, state, jnp.asarray(num_valid, dtype=jnp.int32))
+
+
+@eqx.filter_jit
+def _init(search: ParallelHillClimb, task: Task, key):
+    sample_key, next_key = jr.split(key)
+    population = task.sample(search.size, key=sample_key)
+    fitness = task.evaluate(population)
+    order = jnp.argsort(-fitness, stable=True)
+    population = jax.tree_util.tree_map(lambda a: a[order], population)
+    state = HillClimbState(
+        population=population,
+        fitness=fitness[order],
+        key=next_key,
+        step=jnp.asarray(0, dtype=jnp.int32),
+        evaluations=jnp.asarray(search.size, dtype=jnp.int32),
+    )
+    return state, fitness
+
+
+@eqx.filter_jit
+def _step(search: ParallelHillClimb, task: Task, state: HillClimbState, num_valid):
+    pick_key, perturb_key, next_key = jr.split(state.key, 3)
+    picks = jr.randint(pick_key, (search.batch,), 0, search.size)
+    parents = jax.tree_util.tree_map(lambda a: a[picks], state.population)
+    children = jax.vmap(lambda p, k: task.space.perturb(p, key=k))(
+        parents, jr.split(perturb_key, search.batch)
+    )
+    fitness = task.evaluate(children)
+    valid = jnp.arange(search.batch) < num_valid
+    ranked = jnp.concatenate([state.fitness, jnp.where(valid, fitness, -jnp.inf)])
+    # Stable sort on -fitness: among equal fitness the incumbents (listed first) rank higher.
+    keep = jnp.argsort(-ranked, stable=True)[: search.size]
+    both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), state.population, children)
+    new_state = HillClimbState(
+        population=jax.tree_util.tree_map(lambda a: a[keep], both),
+        fitness=ranked[keep],
+        key=next_key,
+        step=state.step + 1,
+        evaluations=state.evaluations + num_valid,
+    )
+    return new_state, fitness
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """What a search returns.
+
+    - `best`: the best controller found (unbatched).
+    - `best_fitness`: its fitness (maximised).
+    - `history`: the fitness of every evaluation, in order (`History`).
+    - `state`: the final search state (resume or inspect it).
+    """
+
+    best: AbstractController
+    best_fitness: float
+    history: History
+    state: eqx.Module
+
+
+def parallel_hill_climb(
+    task: Task,
+    *,
+    key: PRNGKeyArray,
+    evaluations: int = 25_000,
+    size: int = 100,
+    batch: int = 1,
+    progress: bool = False,
+    callback: Callable[[HillClimbState, History], None] | None = None,
+) -> SearchResult:
+    """Parallel hill climbing (first paper, Figure 4) on `task`; fitness is maximised.
+
+    **Arguments:**
+
+    - `task`: what to optimise.
+    - `key`: the PRNG key (the same key gives the same search).
+    - `evaluations`: how many perturbed controllers to evaluate (the paper's 25,000
+        iterations), after the `size` random controllers of the initial set.
+    - `size`: the search set (100 in the paper).
+    - `batch`: members perturbed and evaluated per step, in one call. `batch=1` is exactly
+        the paper's algorithm; larger batches use the machine far better.
+    - `progress`: show a tqdm progress bar (off by default: the library does not print).
+    - `callback`: called after every step with the state and that step's `History`.
+
+    **Returns:** a `SearchResult`; its history has `size + evaluations` entries.
+    """
+    evaluations = _check_positive_int("evaluations", evaluations)
+    search = ParallelHillClimb(size=size, batch=batch)
+    state, initial = search.init(task, key=key)
+    parts = [History(np.asarray(initial), np.zeros(search.size, dtype=np.int64))]
+    if callback is not None:
+        callback(state, parts[0])
+    steps = math.ceil(evaluations / search.batch)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=evaluations, unit="eval", desc="hill climbing")
+    try:
+        done = 0
+        for k in range(steps):
+            num_valid = min(search.batch, evaluations - done)
+            state, fitness = search.step(task, state, num_valid)
+            part = History(np.asarray(fitness)[:num_valid], np.full(num_valid, k + 1))
+            parts.append(part)
+            done += num_valid
+            if callback is not None:
+                callback(state, part)
+            if bar is not None:
+                bar.update(num_valid)
+                bar.set_postfix(best=f"{float(state.fitness[0]):.4g}", refresh=False)
+    finally:
+        if bar is not None:
+            bar.close()
+    best = jax.tree_util.tree_map(lambda a: a[0], state.population)
+    return SearchResult(
+        best=best,
+        best_fitness=float(state.fitness[0]),
+        history=History.concatenate(parts),
+        state=state,
+    )

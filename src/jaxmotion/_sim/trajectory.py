@@ -1,0 +1,68 @@
+"""What a simulation returns: the observables every body reports, at saved times."""
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+
+class Observation(eqx.Module):
+    """The observables of one body at one instant. Every body reports the same ones, so
+    objectives never care which body moved.
+
+    - `points`: `(num_points, 3)` world positions of the masses (lattices) or rod endpoints.
+    - `com`: `(3,)` centre of mass.
+    - `frame`: `(3, 3)` body orientation; its columns are the body's forward, left and up axes
+        in world coordinates (at rest they are the body's own `frame`).
+    - `contact`: `(num_points,)` whether each point touches the floor (is below z = 0, where the
+        penalty contact acts).
+    """
+
+    points: Float[Array, "num_points 3"]
+    com: Float[Array, "3"]
+    frame: Float[Array, "3 3"]
+    contact: Bool[Array, " num_points"]
+
+
+class Trajectory(eqx.Module):
+    """A simulated motion, sampled at `ts`. Leading axis of every field but `finite` is time.
+
+    - `ts`: `(num_saves,)` saved times, from 0 to the duration.
+    - `points`, `com`, `frame`, `contact`: the `Observation` fields stacked over `ts`.
+    - `finite`: whether the run stayed finite (no NaN or infinity anywhere, and the solver
+        succeeded). A run that blew up is data, not an exception; objectives score it worst.
+
+    Under `vmap` every field gains a leading batch axis.
+    """
+
+    ts: Float[Array, " num_saves"]
+    points: Float[Array, "num_saves num_points 3"]
+    com: Float[Array, "num_saves 3"]
+    frame: Float[Array, "num_saves 3 3"]
+    contact: Bool[Array, "num_saves num_points"]
+    finite: Bool[Array, ""]
+
+    @property
+    def forward(self) -> Float[Array, "num_saves 3"]:
+        """The body's forward axis over time (first column of `frame`)."""
+        return self.frame[..., :, 0]
+
+    @property
+    def left(self) -> Float[Array, "num_saves 3"]:
+        """The body's left axis over time (second column of `frame`)."""
+        return self.frame[..., :, 1]
+
+    @property
+    def up(self) -> Float[Array, "num_saves 3"]:
+        """The body's up axis over time (third column of `frame`)."""
+        return self.frame[..., :, 2]
+
+
+def all_finite(*trees) -> Bool[Array, ""]:
+    """True when every floating-point leaf of the given pytrees is finite."""
+    import jax
+
+    ok = jnp.asarray(True)
+    for leaf in jax.tree_util.tree_leaves(trees):
+        if jnp.issubdtype(jnp.result_type(leaf), jnp.floating):
+            ok = ok & jnp.all(jnp.isfinite(leaf))
+    return ok

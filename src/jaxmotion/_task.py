@@ -1,0 +1,182 @@
+"""`Task`: body, world, controller family, objective and simulation settings, and the one hot
+function `task.evaluate`."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from ._body.base import AbstractBody
+from ._control.base import AbstractController, AbstractControllerSpace
+from ._objective.registry import Objective
+from ._sim.simulate import SolverName, simulate, simulate_batch, time_grid
+from ._sim.trajectory import Trajectory
+from ._world import World
+
+
+class Task(eqx.Module):
+    """What to synthesise: a body in a world, a controller family to search, an objective
+    to maximise and how to simulate.
+
+    **Arguments:**
+
+    - `body`: the character (e.g. `jaxmotion.lattices.cube()`).
+    - `world`: gravity, floor, contact and friction.
+    - `space`: the controller family searched (e.g. `RegimesSpace(num_regimes=4, t_per=1.0)`).
+    - `objective`: the fitness, **maximised** (e.g. `Objective({"forward": 1, "upright": -10})`).
+    - `duration`: simulated time per evaluation, s.
+    - `dt`: physics step of the fixed-step search solver, s.
+    - `save_dt`: interval between the samples the objective sees, s (default 10 ms).
+
+    **Raises:** `ValueError` for non-positive or inconsistent times, before any compilation.
+    """
+
+    body: AbstractBody
+    world: World
+    space: AbstractControllerSpace
+    objective: Objective
+    duration: float = eqx.field(static=True)
+    dt: float = eqx.field(static=True)
+    save_dt: float | None = eqx.field(static=True)
+
+    def __init__(
+        self,
+        body: AbstractBody,
+        world: World,
+        space: AbstractControllerSpace,
+        objective: Objective,
+        duration: float,
+        dt: float = 1e-3,
+        save_dt: float | None = None,
+    ):
+        for name, value, kind in (
+            ("body", body, AbstractBody),
+            ("world", world, World),
+            ("space", space, AbstractControllerSpace),
+            ("objective", objective, Objective),
+        ):
+            if not isinstance(value, kind):
+                raise TypeError(
+                    f"Task.{name} must be a {kind.__name__}; got {type(value).__name__}"
+                )
+        time_grid(duration, dt, save_dt)  # raises ValueError naming a bad time
+        self.body = body
+        self.world = world
+        self.space = space
+        self.objective = objective
+        self.duration = float(duration)
+        self.dt = float(dt)
+        self.save_dt = None if save_dt is None else float(save_dt)
+
+    def sample(self, num: int, *, key: PRNGKeyArray) -> AbstractController:
+        """`num` random controllers of the task's family, stacked along a leading axis."""
+        return jax.vmap(lambda k: self.space.sample(key=k))(jr.split(key, num))
+
+    def evaluate(self, params: AbstractController) -> Float[Array, " batch"]:
+        """Fitness (maximised) of a batch of controllers (leading batch axis on every array).
+
+        One compiled call simulates the whole batch, sharded over every device JAX sees; it is
+        compiled once per body structure, controller family and batch size, and reused by
+        every later call with the same shapes. A run that blows up gets fitness `-inf` (the
+        worst) rather than raising or returning NaN; count them with
+        `jnp.isneginf(fitness)`. Each controller's fitness does not depend on the batch it
+        comes in.
+        """
+        return _evaluate(self, params)
+
+    def trajectories(self, params: AbstractController) -> Trajectory:
+        """The trajectories behind `evaluate`, with a leading batch axis (fast path)."""
+        return _trajectories(self, params)
+
+    def simulate(
+        self,
+        params: AbstractController,
+        *,
+        solver: SolverName = "symplectic",
+        dt: float | None = None,
+        save_dt: float | None = None,
+    ) -> Trajectory:
+        """Simulate one controller (playback), with the search settings unless `solver`,
+        `dt` or `save_dt` say otherwise (`solver="tsit5"` for an adaptive check)."""
+        return _simulate_one(
+            self,
+            params,
+            solver,
+            self.dt if dt is None else dt,
+            self.save_dt if save_dt is None else save_dt,
+        )
+
+    def fitness(self, trajectory: Trajectory) -> Float[Array, "..."]:
+        """The objective of one trajectory, or of a batch of them (leading axis)."""
+        if trajectory.com.ndim == 3:
+            return jax.vmap(self.objective)(trajectory)
+        return self.objective(trajectory)
+
+
+@eqx.filter_jit
+def _simulate_one(task: Task, params, solver, dt, save_dt) -> Trajectory:
+    return simulate(
+        task.body, params, task.world, task.duration, dt=dt, save_dt=save_dt, solver=solver
+    )
+
+
+def _batch_size(params) -> int:
+    leaves = jax.tree_util.tree_leaves(params)
+    if not leaves:
+        raise ValueError("Task.evaluate needs a batch of controllers; got an empty pytree")
+    sizes = {leaf.shape[0] if jnp.ndim(leaf) else None for leaf in leaves}
+    if len(sizes) != 1 or None in sizes:
+        raise ValueError(
+            "Task.evaluate needs controllers stacked along a leading batch axis (e.g. from "
+            "task.sample(n, key=...)); got leaves with leading sizes "
+            f"{sorted(map(str, sizes))}"
+        )
+    return sizes.pop()
+
+
+def _local_fitness(task: Task, params):
+    trajectories = simulate_batch(
+        task.body, params, task.world, task.duration, dt=task.dt, save_dt=task.save_dt
+    )
+    return jax.vmap(task.objective)(trajectories)
+
+
+def _sharded(fn, task: Task, params):
+    """Run `fn(task, params) -> (batch, ...)` with the batch split over every device."""
+    devices = jax.devices()
+    batch = _batch_size(params)
+    if len(devices) == 1:
+        return fn(task, params)
+    pad = (-batch) % len(devices)
+    if pad:
+        params = jax.tree_util.tree_map(
+            lambda a: jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad, *a.shape[1:]))]), params
+        )
+    mesh = Mesh(np.array(devices), ("batch",))
+    dynamic, static = eqx.partition(task, eqx.is_array)
+    local = lambda d, p: fn(eqx.combine(d, static), p)
+    out = jax.shard_map(
+        local,
+        mesh=mesh,
+        in_specs=(PartitionSpec(), PartitionSpec("batch")),
+        out_specs=PartitionSpec("batch"),
+        check_vma=False,
+    )(dynamic, params)
+    return jax.tree_util.tree_map(lambda a: a[:batch], out)
+
+
+@eqx.filter_jit
+def _evaluate(task: Task, params) -> Float[Array, " batch"]:
+    return _sharded(_local_fitness, task, params)
+
+
+@eqx.filter_jit
+def _trajectories(task: Task, params) -> Trajectory:
+    return _sharded(
+        lambda t, p: simulate_batch(t.body, p, t.world, t.duration, dt=t.dt, save_dt=t.save_dt),
+        task,
+        params,
+    )
