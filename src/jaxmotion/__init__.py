@@ -35,6 +35,16 @@ from ._world import floor_force as floor_force
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name):
+    # `jm.viz` is imported on first use, so `import jaxmotion` does not load matplotlib.
+    if name == "viz":
+        import importlib
+
+        return importlib.import_module(".viz", __name__)
+    raise AttributeError(f"module 'jaxmotion' has no attribute {name!r}")
+
+
 __all__ = [
     "PERTURBATIONS",
     "REFLEX_NAMES",
@@ -62,4 +72,5 @@ __all__ = [
     "register_term",
     "simulate",
     "use_cpu_cores",
+    "viz",
 ]

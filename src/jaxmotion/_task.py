@@ -82,8 +82,12 @@ class Task(eqx.Module):
         compiled once per body structure, controller family and batch size, and reused by
         every later call with the same shapes. A run that blows up gets fitness `-inf` (the
         worst) rather than raising or returning NaN; count them with
-        `jnp.isneginf(fitness)`. Each controller's fitness does not depend on the batch it
-        comes in.
+        `jnp.isneginf(fitness)`.
+
+        Results are bitwise reproducible and do not depend on the order of the batch or on
+        the number of devices. In batches of 16 or more a controller's fitness does not
+        depend on the rest of the batch either; smaller batches take a scalar code path
+        whose rounding can differ in the last bits (which a chaotic motion can amplify).
         """
         return _evaluate(self, params)
 
@@ -112,7 +116,7 @@ class Task(eqx.Module):
     def fitness(self, trajectory: Trajectory) -> Float[Array, "..."]:
         """The objective of one trajectory, or of a batch of them (leading axis)."""
         if trajectory.com.ndim == 3:
-            return jax.vmap(self.objective)(trajectory)
+            return jax.lax.map(self.objective, trajectory)
         return self.objective(trajectory)
 
 
@@ -141,14 +145,22 @@ def _local_fitness(task: Task, params):
     trajectories = simulate_batch(
         task.body, params, task.world, task.duration, dt=task.dt, save_dt=task.save_dt
     )
-    return jax.vmap(task.objective)(trajectories)
+    # One controller at a time, so the arithmetic does not depend on the batch size.
+    return jax.lax.map(task.objective, trajectories)
+
+
+# XLA's CPU loops process 16 float32 lanes at a time; shorter batches take a scalar path
+# whose rounding differs in the last bits. Splitting a batch only into shares of at least
+# this many keeps results bitwise identical whatever the number of devices.
+_MIN_SHARE = 16
 
 
 def _sharded(fn, task: Task, params):
-    """Run `fn(task, params) -> (batch, ...)` with the batch split over every device."""
+    """Run `fn(task, params) -> (batch, ...)` with the batch split over every device (small
+    batches, where splitting buys little, stay on one device)."""
     devices = jax.devices()
     batch = _batch_size(params)
-    if len(devices) == 1:
+    if len(devices) == 1 or batch < _MIN_SHARE * len(devices):
         return fn(task, params)
     pad = (-batch) % len(devices)
     if pad:

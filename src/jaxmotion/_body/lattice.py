@@ -140,8 +140,22 @@ class Lattice(AbstractBody):
         return table.at[i, j].set(rest).at[j, i].set(rest)
 
     def initial_state(self):
-        x = jnp.transpose(self.points)
-        return x, jnp.zeros_like(x)
+        return self.state()
+
+    def state(
+        self,
+        points: Float[ArrayLike, "num_masses 3"] | None = None,
+        velocities: Float[ArrayLike, "num_masses 3"] | None = None,
+    ):
+        """A simulation state for `simulate(..., initial_state=...)`: the masses at `points`
+        (default: the rest shape) moving with `velocities` (default: at rest)."""
+        x = jnp.transpose(self.points if points is None else jnp.asarray(points, dtype=float))
+        v = jnp.zeros_like(x) if velocities is None else jnp.transpose(jnp.asarray(velocities))
+        if x.shape != (3, self.num_masses) or v.shape != x.shape:
+            raise ValueError(
+                f"Lattice.state needs points and velocities of shape ({self.num_masses}, 3)"
+            )
+        return x, v.astype(x.dtype)
 
     def dynamics(self) -> "LatticeDynamics":
         n = self.num_masses

@@ -1,0 +1,341 @@
+"""Experiment configs (TOML): the schema, its checks, and building the objects it names.
+
+Everything here runs before JAX compiles anything, so a bad config fails fast with a message
+naming the key, the value and what is allowed.
+"""
+
+import inspect
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .. import lattices
+from .._control.regimes import RegimesSpace
+from .._objective.registry import Objective
+from .._sim.simulate import time_grid
+from .._task import Task
+from .._world import World
+
+
+class ConfigError(ValueError):
+    """A config that cannot be run; the message names the key, the value and what is
+    allowed."""
+
+
+_REQUIRED = object()
+
+
+@dataclass(frozen=True)
+class Key:
+    """One config key: its type, default and a check returning what is allowed (or None)."""
+
+    kind: str  # "number", "integer", "bool", "string", "numbers"
+    default: Any = _REQUIRED
+    check: Callable[[Any], bool] | None = None
+    allowed: str = ""
+    length: int | None = None
+
+
+def _positive(v):
+    return v > 0
+
+
+def _nonnegative(v):
+    return v >= 0
+
+
+def _describe(kind: str, allowed: str, length: int | None) -> str:
+    base = {
+        "number": "a number",
+        "integer": "an integer",
+        "bool": "true or false",
+        "string": "a string",
+        "numbers": f"a list of {length} numbers" if length else "a list of numbers",
+    }[kind]
+    return f"{base} {allowed}".strip()
+
+
+def _check_value(where: str, name: str, spec: Key, value: Any) -> Any:
+    what = _describe(spec.kind, spec.allowed, spec.length)
+
+    def fail():
+        return ConfigError(f"{where} {name} = {value!r}; allowed: {what}")
+
+    if spec.kind == "number":
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+        ):
+            raise fail()
+        value = float(value)
+    elif spec.kind == "integer":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise fail()
+    elif spec.kind == "bool":
+        if not isinstance(value, bool):
+            raise fail()
+    elif spec.kind == "string":
+        if not isinstance(value, str):
+            raise fail()
+    elif spec.kind == "numbers":
+        if not isinstance(value, list) or any(
+            isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v)
+            for v in value
+        ):
+            raise fail()
+        if spec.length is not None and len(value) != spec.length:
+            raise fail()
+        value = [float(v) for v in value]
+    if spec.check is not None and not spec.check(value):
+        raise fail()
+    return value
+
+
+def _read_section(where: str, table: Any, schema: Mapping[str, Key]) -> dict[str, Any]:
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"{where} must be a table of keys; got {table!r}")
+    out: dict[str, Any] = {}
+    for name, value in table.items():
+        if name not in schema:
+            allowed = ", ".join(schema) or "(no keys)"
+            raise ConfigError(f"{where} has an unknown key {name!r}; allowed: {allowed}")
+        out[name] = _check_value(where, name, schema[name], value)
+    for name, spec in schema.items():
+        if name not in out:
+            if spec.default is _REQUIRED:
+                raise ConfigError(
+                    f"{where} is missing the key {name!r} "
+                    f"({_describe(spec.kind, spec.allowed, spec.length)})"
+                )
+            if spec.default is not None:
+                out[name] = spec.default
+    return out
+
+
+# ----------------------------------------------------------------------------------- bodies
+
+LATTICE_BUILDERS: dict[str, Callable] = {
+    "cube": lattices.cube,
+    "pyramid": lattices.pyramid,
+    "chair": lattices.chair,
+}
+
+
+def _builder_schema(builder: Callable) -> dict[str, Key]:
+    schema = {}
+    for p in inspect.signature(builder).parameters.values():
+        schema[p.name] = Key("number", float(p.default), _positive, "> 0")
+    return schema
+
+
+def _body_schema(table: Mapping) -> tuple[dict[str, Key], Callable]:
+    kind = table.get("lattice", "cube") if isinstance(table, Mapping) else None
+    if kind not in LATTICE_BUILDERS:
+        raise ConfigError(
+            f"[body] lattice = {kind!r}; allowed: one of {', '.join(map(repr, LATTICE_BUILDERS))}"
+        )
+    builder = LATTICE_BUILDERS[kind]
+    schema = {"lattice": Key("string", "cube")}
+    schema.update(_builder_schema(builder))
+    return schema, builder
+
+
+# ---------------------------------------------------------------------------- the sections
+
+WORLD = {
+    "gravity": Key("number", 9.81, _nonnegative, ">= 0 (m/s^2)"),
+    "floor": Key("bool", True),
+    "floor_stiffness": Key("number", 2.0e4, _positive, "> 0 (N/m)"),
+    "floor_damping": Key("number", 200.0, _nonnegative, ">= 0 (N s/m)"),
+    "friction": Key("number", 0.8, _nonnegative, ">= 0"),
+    "friction_preferred": Key("number", None, _nonnegative, ">= 0"),
+    "friction_direction": Key(
+        "numbers", None, lambda v: math.hypot(*v) > 0, "(dx, dy), not both zero", length=2
+    ),
+    "friction_velocity": Key("number", 0.05, _positive, "> 0 (m/s)"),
+}
+
+CONTROLLER = {
+    "family": Key("string", "regimes", lambda v: v == "regimes", '"regimes"'),
+    "num_regimes": Key("integer", 4, lambda v: v >= 1, ">= 1"),
+    "t_per": Key("number", 1.0, _positive, "> 0 (s)"),
+    "amplitudes": Key(
+        "numbers",
+        [0.3, 0.3, 0.3, 0.5],
+        lambda v: min(v) >= 0 and v[0] < 1 and v[2] < 1,
+        "(scale, shear, splay, twist) >= 0, scale and splay < 1",
+        length=4,
+    ),
+}
+
+SIMULATION = {
+    "duration": Key("number", _REQUIRED, _positive, "> 0 (s)"),
+    "dt": Key("number", 1e-3, _positive, "> 0 (s)"),
+    "save_dt": Key("number", 0.01, _positive, "> 0 (s)"),
+}
+
+SEARCH = {
+    "algorithm": Key(
+        "string",
+        "parallel_hill_climb",
+        lambda v: v == "parallel_hill_climb",
+        '"parallel_hill_climb"',
+    ),
+    "evaluations": Key("integer", 25_000, lambda v: v >= 1, ">= 1"),
+    "size": Key("integer", 100, lambda v: v >= 1, ">= 1"),
+    "batch": Key("integer", 1, lambda v: v >= 1, ">= 1"),
+}
+
+OUTPUT = {
+    "directory": Key("string", "results", lambda v: bool(v.strip()), "(not empty)"),
+    "animation": Key("bool", True),
+    "fps": Key("integer", 25, lambda v: 1 <= v <= 100, "from 1 to 100"),
+}
+
+TOP = {
+    "name": Key(
+        "string",
+        None,
+        lambda v: bool(v) and all(c.isalnum() or c in "-_." for c in v),
+        "of letters, digits, '-', '_' or '.'",
+    ),
+    "seed": Key("integer", 0, lambda v: 0 <= v < 2**32, "from 0 to 2**32 - 1"),
+}
+
+SECTIONS = ("body", "world", "controller", "objective", "simulation", "search", "output")
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A checked experiment config and the objects it describes.
+
+    - `name`, `seed`: the run's label and the seed of its one PRNG key.
+    - `config`: the resolved config (every key, defaults filled in), as written to results.
+    - `task`: the `Task` to search.
+    - `search`: the search settings (`algorithm`, `evaluations`, `size`, `batch`).
+    - `output`: where and what to write (`directory`, `animation`, `fps`).
+    """
+
+    name: str
+    seed: int
+    config: dict[str, Any]
+    task: Task
+    search: dict[str, Any] = field(default_factory=dict)
+    output: dict[str, Any] = field(default_factory=dict)
+
+
+def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experiment:
+    """Check a config (as read from TOML) and build its `Experiment`.
+
+    **Raises:** `ConfigError` (a `ValueError`) naming the first bad key, its value and what is
+    allowed.
+    """
+    if not isinstance(raw, Mapping):
+        raise ConfigError(f"a config must be a table; got {raw!r}")
+    top = {k: v for k, v in raw.items() if k not in SECTIONS}
+    for k, v in top.items():
+        if isinstance(v, Mapping) and k not in TOP:
+            raise ConfigError(
+                f"unknown section [{k}]; allowed: {', '.join(f'[{s}]' for s in SECTIONS)}"
+            )
+    head = _read_section("the top level", top, TOP)
+    head.setdefault("name", name)
+    resolved: dict[str, Any] = dict(head)
+
+    body_table = raw.get("body", {})
+    body_schema, builder = _body_schema(body_table)
+    body_cfg = _read_section("[body]", body_table, body_schema)
+    world_cfg = _read_section("[world]", raw.get("world", {}), WORLD)
+    controller_cfg = _read_section("[controller]", raw.get("controller", {}), CONTROLLER)
+    if "objective" not in raw:
+        raise ConfigError("the config has no [objective] section (e.g. forward = 1.0)")
+    objective_raw = raw["objective"]
+    if not isinstance(objective_raw, Mapping) or not objective_raw:
+        raise ConfigError(f"[objective] must be a non-empty table of terms; got {objective_raw!r}")
+    if "simulation" not in raw:
+        raise ConfigError("the config has no [simulation] section (duration = ... is required)")
+    simulation_cfg = _read_section("[simulation]", raw["simulation"], SIMULATION)
+    search_cfg = _read_section("[search]", raw.get("search", {}), SEARCH)
+    output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
+
+    def build(section: str, make: Callable[[], Any]):
+        try:
+            return make()
+        except ValueError as e:
+            raise ConfigError(f"[{section}] {e}") from None
+
+    body = build("body", lambda: builder(**{k: v for k, v in body_cfg.items() if k != "lattice"}))
+    world = build(
+        "world",
+        lambda: World(
+            **{k: (tuple(v) if k == "friction_direction" else v) for k, v in world_cfg.items()}
+        ),
+    )
+    space = build(
+        "controller",
+        lambda: RegimesSpace(
+            num_regimes=controller_cfg["num_regimes"],
+            t_per=controller_cfg["t_per"],
+            amplitudes=tuple(controller_cfg["amplitudes"]),
+        ),
+    )
+    objective = build("objective", lambda: Objective(dict(objective_raw)))
+    build(
+        "simulation",
+        lambda: time_grid(
+            simulation_cfg["duration"], simulation_cfg["dt"], simulation_cfg["save_dt"]
+        ),
+    )
+    task = Task(
+        body,
+        world,
+        space,
+        objective,
+        duration=simulation_cfg["duration"],
+        dt=simulation_cfg["dt"],
+        save_dt=simulation_cfg["save_dt"],
+    )
+    resolved.update(
+        body=body_cfg,
+        world=world_cfg,
+        controller=controller_cfg,
+        objective=objective.to_dict(),
+        simulation=simulation_cfg,
+        search=search_cfg,
+        output=output_cfg,
+    )
+    return Experiment(
+        name=head["name"],
+        seed=head["seed"],
+        config=resolved,
+        task=task,
+        search=search_cfg,
+        output=output_cfg,
+    )
+
+
+def load_config(path: str | Path) -> Experiment:
+    """Read and check a TOML experiment config. The run's name defaults to the file's stem.
+
+    **Raises:** `ConfigError` naming the file and the first bad key, its value and what is
+    allowed; `FileNotFoundError` if there is no such file.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            raw = tomllib.load(f)
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    try:
+        return parse_config(raw, name=path.stem)
+    except ConfigError as e:
+        raise ConfigError(f"{path}: {e}") from None
+
+
+def default_config_path() -> Path:
+    """The config `python -m jaxmotion` runs (a copy ships as `configs/default.toml`)."""
+    return Path(__file__).with_name("default.toml")

@@ -1,0 +1,88 @@
+"""`learning_plot`: the fitness of every evaluation of a search and the best so far."""
+
+import numpy as np
+from jaxtyping import ArrayLike, Float
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from .._search.history import History
+
+
+def learning_plot(
+    history: History | Float[ArrayLike, " num_evaluations"],
+    *,
+    ax: Axes | None = None,
+    title: str | None = None,
+) -> Figure:
+    """The learning plot of a search (the first paper's Figure 6): the fitness of every
+    evaluation as a small point, and the best fitness so far as a line. Fitness is
+    maximised.
+
+    Evaluations whose fitness is not finite (`-inf` marks a simulation that blew up) are not
+    drawn and do not count towards the best so far; the legend says how many there were.
+
+    **Arguments:**
+
+    - `history`: a `History` (e.g. `parallel_hill_climb(...).history`) or a 1-D array of the
+        fitness of each evaluation, in order.
+    - `ax`: axes to draw into; `None` makes a new figure.
+    - `title`: drawn above the plot.
+
+    **Returns:** the `matplotlib.figure.Figure` drawn into (the one holding `ax` if given).
+    Evaluation numbers on the x-axis start at 1.
+
+    **Raises:** `ValueError` if the fitness is not one-dimensional.
+    """
+    fitness = history.fitness if isinstance(history, History) else history
+    fitness = np.asarray(fitness, dtype=np.float64)
+    if fitness.ndim != 1:
+        raise ValueError(
+            "learning_plot needs one fitness per evaluation (a History or a 1-D array); got "
+            f"an array of shape {fitness.shape}"
+        )
+    if ax is None:
+        fig = Figure(figsize=(6.0, 4.0), layout="constrained")
+        FigureCanvasAgg(fig)  # renders without pyplot or a GUI backend
+        ax = fig.add_subplot()
+    else:
+        fig = _root_figure(ax)
+
+    evaluation = np.arange(1, fitness.shape[0] + 1)
+    finite = np.isfinite(fitness)
+    num_nonfinite = int(np.sum(~finite))
+    label = "evaluation"
+    if num_nonfinite:
+        label += f" ({num_nonfinite} blew up, not drawn)"
+    ax.scatter(
+        evaluation[finite],
+        fitness[finite],
+        s=4,
+        color="tab:blue",
+        alpha=0.5,
+        linewidths=0,
+        label=label,
+    )
+    best = np.maximum.accumulate(np.where(finite, fitness, -np.inf))
+    # The line starts at the first finite evaluation: before it there is no best yet.
+    start = int(np.argmax(finite)) if finite.any() else fitness.shape[0]
+    ax.plot(
+        evaluation[start:],
+        best[start:],
+        color="tab:red",
+        linewidth=1.5,
+        drawstyle="steps-post",
+        label="best so far",
+    )
+    ax.set_xlabel("evaluation")
+    ax.set_ylabel("fitness")
+    if title is not None:
+        ax.set_title(title)
+    ax.legend(loc="lower right", markerscale=3)
+    return fig
+
+
+def _root_figure(ax: Axes) -> Figure:
+    fig = ax.figure
+    # Axes in a SubFigure report the subfigure; its own `figure` is the root Figure.
+    return fig if isinstance(fig, Figure) else fig.figure

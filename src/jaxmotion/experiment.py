@@ -1,0 +1,29 @@
+"""Experiments from TOML configs: load, run, and read back results folders.
+
+This is the config/IO layer (the library core never touches disk); `python -m jaxmotion`
+is built on it.
+"""
+
+from ._cli.config import ConfigError as ConfigError
+from ._cli.config import Experiment as Experiment
+from ._cli.config import default_config_path as default_config_path
+from ._cli.config import load_config as load_config
+from ._cli.config import parse_config as parse_config
+from ._cli.results import controller_from_dict as controller_from_dict
+from ._cli.results import controller_to_dict as controller_to_dict
+from ._cli.results import load_result as load_result
+from ._cli.results import read_history_csv as read_history_csv
+from ._cli.results import run_experiment as run_experiment
+
+__all__ = [
+    "ConfigError",
+    "Experiment",
+    "controller_from_dict",
+    "controller_to_dict",
+    "default_config_path",
+    "load_config",
+    "load_result",
+    "parse_config",
+    "read_history_csv",
+    "run_experiment",
+]

@@ -1,0 +1,133 @@
+"""`Task.evaluate`: agreement with the plain simulation, batch invariance, failures,
+compilation reuse and sharding over devices."""
+
+import json
+import logging
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.random as jr
+import numpy as np
+import pytest
+
+import jaxmotion as jm
+
+
+def cube_task(duration=1.0, dt=1e-3, body=None, **kw):
+    return jm.Task(
+        body or jm.lattices.cube(),
+        jm.World(),
+        jm.RegimesSpace(4, 0.5),
+        jm.Objective({"forward": 1.0, "upright": -10.0, "max_height": 0.5}),
+        duration=duration,
+        dt=dt,
+        **kw,
+    )
+
+
+def test_evaluate_equals_the_objective_of_each_simulation(x64):
+    task = cube_task()
+    params = task.sample(6, key=jr.key(0))
+    fitness = np.asarray(task.evaluate(params))
+    for b in range(6):
+        one = jax.tree_util.tree_map(lambda a: a[b], params)
+        trajectory = jm.simulate(task.body, one, task.world, task.duration, dt=task.dt)
+        assert fitness[b] == pytest.approx(float(task.objective(trajectory)), abs=1e-9)
+
+
+@pytest.mark.parametrize("size", [5, 32])
+def test_fitness_does_not_depend_on_batch_order(size):
+    task = cube_task()
+    params = task.sample(size, key=jr.key(1))
+    fitness = np.asarray(task.evaluate(params))
+    order = np.random.default_rng(0).permutation(size)
+    shuffled = jax.tree_util.tree_map(lambda a: a[order], params)
+    np.testing.assert_array_equal(np.asarray(task.evaluate(shuffled)), fitness[order])
+    np.testing.assert_array_equal(np.asarray(task.evaluate(params)), fitness)  # deterministic
+
+
+def test_fitness_does_not_depend_on_company_in_batches_of_16_or_more():
+    task = cube_task()
+    params = task.sample(48, key=jr.key(1))
+    fitness = np.asarray(task.evaluate(params))
+    for lo, hi in [(0, 16), (16, 48), (5, 30)]:
+        part = jax.tree_util.tree_map(lambda a: a[lo:hi], params)
+        np.testing.assert_array_equal(np.asarray(task.evaluate(part)), fitness[lo:hi])
+
+
+def test_blown_up_runs_score_worst_and_do_not_poison_the_batch():
+    stiff = cube_task(dt=5e-3, body=jm.lattices.cube(stiffness=5e6))
+    fitness = np.asarray(stiff.evaluate(stiff.sample(4, key=jr.key(2))))
+    assert np.all(np.isneginf(fitness))
+    assert not np.any(np.isnan(fitness))
+    ok = cube_task()
+    assert np.all(np.isfinite(np.asarray(ok.evaluate(ok.sample(4, key=jr.key(2))))))
+
+
+def test_evaluate_compiles_once_per_shape_and_is_reused(caplog):
+    task = cube_task(duration=0.5)
+    params = task.sample(8, key=jr.key(3))
+    task.evaluate(params).block_until_ready()  # may compile
+    with jax.log_compiles(), caplog.at_level(logging.WARNING):
+        caplog.clear()
+        task.evaluate(task.sample(8, key=jr.key(4))).block_until_ready()
+        # A new Task with the same shapes (another search) reuses the compiled call too.
+        other = cube_task(duration=0.5)
+        other.evaluate(params).block_until_ready()
+    compiled = [r.getMessage() for r in caplog.records if "_evaluate" in r.getMessage()]
+    assert compiled == []
+
+
+def test_task_rejects_bad_settings_before_compiling():
+    with pytest.raises(ValueError, match=r"duration = -2.0; allowed: a number of seconds > 0"):
+        cube_task(duration=-2.0)
+    with pytest.raises(TypeError, match=r"Task.objective must be a Objective"):
+        jm.Task(jm.lattices.cube(), jm.World(), jm.RegimesSpace(), {"forward": 1.0}, 1.0)
+    with pytest.raises(ValueError, match=r"leading batch axis"):
+        cube_task().evaluate(jm.RegimesSpace(4, 0.5).sample(key=jr.key(0)))
+
+
+def test_trajectories_and_simulate_playback_match_evaluate():
+    task = cube_task()
+    params = task.sample(3, key=jr.key(5))
+    fitness = np.asarray(task.evaluate(params))
+    trajectories = task.trajectories(params)
+    np.testing.assert_array_equal(np.asarray(task.fitness(trajectories)), fitness)
+    one = jax.tree_util.tree_map(lambda a: a[0], params)
+    assert float(task.fitness(task.simulate(one))) == pytest.approx(fitness[0], abs=1e-4)
+    adaptive = task.simulate(one, solver="tsit5")
+    assert bool(adaptive.finite)
+
+
+SHARDING_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import jax, jax.random as jr, numpy as np
+    import jaxmotion as jm
+    task = jm.Task(jm.lattices.cube(), jm.World(), jm.RegimesSpace(4, 0.5),
+                   jm.Objective({"forward": 1.0, "upright": -10.0}), duration=0.5)
+    out = {"devices": len(jax.devices())}
+    for size in (7, 41):  # 7 stays on one device; 41 is padded to 42 and split in two
+        params = task.sample(size, key=jr.key(9))
+        out[size] = np.asarray(task.evaluate(params)).tolist()
+    print(json.dumps(out))
+    """
+)
+
+
+def run_with_devices(n):
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}")
+    out = subprocess.run(
+        [sys.executable, "-c", SHARDING_SCRIPT], env=env, capture_output=True, text=True, check=True
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_sharding_over_two_devices_gives_identical_results():
+    one, two = run_with_devices(1), run_with_devices(2)
+    assert (one["devices"], two["devices"]) == (1, 2)
+    assert one["7"] == two["7"]
+    assert one["41"] == two["41"]
