@@ -68,7 +68,11 @@ SQUARE = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
         ([[0, 1], [1, 3]], {}, r"spring 1 = \(1, 3\) refers to mass 3, which does not exist"),
         ([[0, 1], [1, 0]], {}, r"spring 1 = \(1, 0\) duplicates spring 0 = \(0, 1\)"),
         ([[0, 1], [2, 2]], {}, r"spring 1 = \(2, 2\) connects mass 2 to itself"),
-        ([[0, 1]], {"masses": [1.0, -2.0, 1.0]}, r"mass 1 has mass -2; allowed: a finite number > 0"),
+        (
+            [[0, 1]],
+            {"masses": [1.0, -2.0, 1.0]},
+            r"mass 1 has mass -2; allowed: a finite number > 0",
+        ),
         ([[0, 1]], {"masses": 0.0}, r"mass 0 has mass 0"),
         ([[0, 1]], {"stiffness": -1.0}, r"spring 0 = \(0, 1\) has stiffness -1"),
         ([[0, 1]], {"rest_lengths": [0.0]}, r"spring 0 = \(0, 1\) has rest length 0"),
@@ -105,9 +109,7 @@ def test_rest_length_matrix_is_identity_for_rest_shape_and_scales_prestress():
 @given(
     st.integers(min_value=2, max_value=7).flatmap(
         lambda n: st.tuples(
-            st.lists(
-                st.tuples(*[st.floats(-2, 2, allow_nan=False)] * 3), min_size=n, max_size=n
-            ),
+            st.lists(st.tuples(*[st.floats(-2, 2, allow_nan=False)] * 3), min_size=n, max_size=n),
             st.lists(
                 st.tuples(st.integers(0, n - 1), st.integers(0, n - 1)), min_size=1, max_size=12
             ),

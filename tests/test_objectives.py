@@ -59,7 +59,9 @@ def test_forward_and_sideways_follow_the_initial_frame():
     assert value("sideways", tr) == pytest.approx(1.0)
     assert value("distance", tr) == pytest.approx(np.hypot(3.0, 1.0))
     # A body facing +y at the start: its forward travel is the y displacement.
-    turned = make(line([0, 0, 0.5], [3.0, -1.0, 0.5]), frames=np.broadcast_to(rot_z(np.pi / 2), (11, 3, 3)))
+    turned = make(
+        line([0, 0, 0.5], [3.0, -1.0, 0.5]), frames=np.broadcast_to(rot_z(np.pi / 2), (11, 3, 3))
+    )
     assert value("forward", turned) == pytest.approx(-1.0)
     assert value("sideways", turned) == pytest.approx(3.0)
 
@@ -95,9 +97,9 @@ def test_rotation_terms_measure_angles_and_signs():
     still = np.full((41, 3), 0.5)
     yaw = make(still, frames=spin(rot_z, 2 * np.pi))
     assert value("net_yaw", yaw) == pytest.approx(2 * np.pi, rel=1e-5)
-    assert value("net_yaw", make(still, frames=spin(rot_z, -2 * np.pi)), signed=True) == pytest.approx(
-        -2 * np.pi, rel=1e-5
-    )
+    assert value(
+        "net_yaw", make(still, frames=spin(rot_z, -2 * np.pi)), signed=True
+    ) == pytest.approx(-2 * np.pi, rel=1e-5)
     assert value("rotation", yaw) == pytest.approx(2 * np.pi, rel=1e-5)
     assert value("rotation", yaw, axis="up") == pytest.approx(2 * np.pi, rel=1e-5)
     # A backward somersault (nose up and over): negative about the left axis.
@@ -135,8 +137,14 @@ def test_asymmetry_is_zero_for_symmetric_motion_and_grows_with_asymmetry():
     points = np.array(base.points)
     left = CUBE_POINTS[:, 1] > 0
     points[1:, left, 1] += 0.2
-    lopsided = jm.Trajectory(ts=base.ts, points=jnp.asarray(points), com=base.com,
-                             frame=base.frame, contact=base.contact, finite=base.finite)
+    lopsided = jm.Trajectory(
+        ts=base.ts,
+        points=jnp.asarray(points),
+        com=base.com,
+        frame=base.frame,
+        contact=base.contact,
+        finite=base.finite,
+    )
     assert value("asymmetry", lopsided) == pytest.approx(0.2 * 4 / 5, rel=1e-3)
     # Mirrored across the horizontal plane, each point meets the one above or below it,
     # which moved the same way: no up-down asymmetry.
@@ -145,20 +153,37 @@ def test_asymmetry_is_zero_for_symmetric_motion_and_grows_with_asymmetry():
 
 def test_objective_weights_and_non_finite_runs():
     tr = make(line([0, 0, 0.5], [2.0, 0.0, 0.5]))
-    objective = jm.Objective({"forward": 1.5, "upright": -10.0, "height": {"term": "max_height", "weight": 2.0}})
+    objective = jm.Objective(
+        {"forward": 1.5, "upright": -10.0, "height": {"term": "max_height", "weight": 2.0}}
+    )
     assert float(objective(tr)) == pytest.approx(3.0)
     assert set(objective.values(tr)) == {"forward", "upright", "height"}
-    broken = jm.Trajectory(ts=tr.ts, points=tr.points, com=tr.com, frame=tr.frame,
-                           contact=tr.contact, finite=jnp.asarray(False))
+    broken = jm.Trajectory(
+        ts=tr.ts,
+        points=tr.points,
+        com=tr.com,
+        frame=tr.frame,
+        contact=tr.contact,
+        finite=jnp.asarray(False),
+    )
     assert float(objective(broken)) == -np.inf
-    nan_com = jm.Trajectory(ts=tr.ts, points=tr.points, com=tr.com.at[-1, 0].set(jnp.nan),
-                            frame=tr.frame, contact=tr.contact, finite=jnp.asarray(True))
+    nan_com = jm.Trajectory(
+        ts=tr.ts,
+        points=tr.points,
+        com=tr.com.at[-1, 0].set(jnp.nan),
+        frame=tr.frame,
+        contact=tr.contact,
+        finite=jnp.asarray(True),
+    )
     assert float(objective(nan_com)) == -np.inf
 
 
 def test_objective_round_trips_and_is_vmappable():
-    spec = {"forward": 1.0, "upright": {"weight": -10.0, "max_degrees": 30.0},
-            "roll": {"term": "rotation", "weight": -0.5, "axis": "forward"}}
+    spec = {
+        "forward": 1.0,
+        "upright": {"weight": -10.0, "max_degrees": 30.0},
+        "roll": {"term": "rotation", "weight": -0.5, "axis": "forward"},
+    }
     objective = jm.Objective(spec)
     assert jm.Objective(objective.to_dict()).spec == objective.spec
     trs = [make(line([0, 0, 0.5], [d, 0, 0.5])) for d in (1.0, 2.0, 3.0)]
@@ -171,9 +196,15 @@ def test_objective_round_trips_and_is_vmappable():
     [
         ({"forwards": 1.0}, r"'forwards': unknown term 'forwards'; allowed: .*forward"),
         ({"forward": "1"}, r"'forward': weight = '1'; allowed: a finite number"),
-        ({"upright": {"weight": -1, "max_tilt": 3}}, r"unknown option 'max_tilt'; allowed: term, weight, max_degrees"),
+        (
+            {"upright": {"weight": -1, "max_tilt": 3}},
+            r"unknown option 'max_tilt'; allowed: term, weight, max_degrees",
+        ),
         ({"upright": {"max_degrees": 3}}, r"must give its weight"),
-        ({"upright": {"weight": 1, "max_degrees": "x"}}, r"option max_degrees = 'x'; allowed: a number"),
+        (
+            {"upright": {"weight": 1, "max_degrees": "x"}},
+            r"option max_degrees = 'x'; allowed: a number",
+        ),
         ({"x": {"term": "nope", "weight": 1}}, r"unknown term 'nope'"),
         ({}, r"non-empty"),
     ],
@@ -186,6 +217,7 @@ def test_bad_objectives_raise(spec, message):
 def test_registering_a_term():
     name = "test_final_height"
     if name not in jm.objective_terms():
+
         @jm.register_term(name)
         def final_height(trajectory, offset: float = 0.0):
             """Final height of the centre of mass plus `offset`."""

@@ -33,9 +33,7 @@ def test_coefficient_zero_is_the_identity(reflex):
 
 
 def test_the_twelve_reflexes_give_twelve_different_rest_shapes():
-    tables = [
-        np.asarray(CUBE.rest_length_matrix(CUBE.com + deform(r, 1.0))) for r in range(12)
-    ]
+    tables = [np.asarray(CUBE.rest_length_matrix(CUBE.com + deform(r, 1.0))) for r in range(12)]
     for a, b in itertools.combinations(range(12), 2):
         assert np.abs(tables[a] - tables[b]).max() > 1e-2, (jm.REFLEX_NAMES[a], jm.REFLEX_NAMES[b])
     rest = np.asarray(CUBE.rest_length_matrix())
@@ -70,23 +68,23 @@ def test_each_deformation_does_what_its_name_says():
 def test_deformations_happen_in_the_lattice_frame():
     """A lattice whose frame is turned 90 degrees about z scales along its own forward axis."""
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # forward = +y
-    lattice = jm.lattices.from_points(
-        np.asarray(CUBE.points), np.asarray(CUBE.springs), frame=turn
-    )
+    lattice = jm.lattices.from_points(np.asarray(CUBE.points), np.asarray(CUBE.springs), frame=turn)
     shapes = jm.Regimes([0.0], [0], [1.0], 1.0).shapes(lattice)[0]
     extent = np.ptp(np.asarray(shapes), axis=0)
     np.testing.assert_allclose(extent, [1.0, 1.3, 1.0], rtol=1e-6)
 
 
 def test_active_regime_is_the_nearest_time_modulo_the_period():
-    c = jm.Regimes(times=[0.1, 0.5, 0.8], reflexes=[0, 1, 2], coefficients=[0.5, -0.5, 1.0],
-                   t_per=1.0)
+    c = jm.Regimes(
+        times=[0.1, 0.5, 0.8], reflexes=[0, 1, 2], coefficients=[0.5, -0.5, 1.0], t_per=1.0
+    )
     cases = {0.0: 0, 0.29: 0, 0.31: 1, 0.64: 1, 0.66: 2, 0.99: 2, 1.05: 0, 2.4: 1, 3.7: 2}
     plan = c.prepare(CUBE)
     for t, regime in cases.items():
         assert int(c.active(jnp.asarray(t))) == regime, t
-        np.testing.assert_array_equal(np.asarray(c.actuation(jnp.asarray(t), plan)),
-                                      np.asarray(plan[regime]))
+        np.testing.assert_array_equal(
+            np.asarray(c.actuation(jnp.asarray(t), plan)), np.asarray(plan[regime])
+        )
 
 
 def test_aperiodic_controller_never_wraps():
@@ -165,12 +163,15 @@ def test_each_perturbation_changes_what_it_says(op):
         parents, keys
     )
     name = jm.PERTURBATIONS[op][1]
-    field = {"reflex number": "reflexes", "reflex coefficient": "coefficients",
-             "regime time": "times"}[next(k for k in ("reflex number", "reflex coefficient",
-                                                       "regime time") if k in name)]
+    field = {
+        "reflex number": "reflexes",
+        "reflex coefficient": "coefficients",
+        "regime time": "times",
+    }[next(k for k in ("reflex number", "reflex coefficient", "regime time") if k in name)]
     for other in {"reflexes", "coefficients", "times"} - {field}:
-        np.testing.assert_array_equal(np.asarray(getattr(children, other)),
-                                      np.asarray(getattr(parents, other)))
+        np.testing.assert_array_equal(
+            np.asarray(getattr(children, other)), np.asarray(getattr(parents, other))
+        )
     diff = changed(getattr(children, field), getattr(parents, field))
     per_controller = diff.sum(axis=1)
     if "one regime" in name:

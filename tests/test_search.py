@@ -92,7 +92,11 @@ def test_callback_sees_every_step_and_bad_settings_raise():
     task = forward_task(duration=0.5)
     seen = []
     jm.parallel_hill_climb(
-        task, key=jr.key(0), evaluations=40, size=10, batch=20,
+        task,
+        key=jr.key(0),
+        evaluations=40,
+        size=10,
+        batch=20,
         callback=lambda state, part: seen.append((int(state.step), len(part))),
     )
     assert seen == [(0, 10), (1, 20), (2, 20)]
@@ -106,8 +110,8 @@ def test_callback_sees_every_step_and_bad_settings_raise():
 
 
 def test_history_round_trip(tmp_path):
-    from jaxmotion.experiment import read_history_csv
     from jaxmotion._cli.results import write_history_csv
+    from jaxmotion.experiment import read_history_csv
 
     h = jm.History(np.array([1.0, -np.inf, 3.5, 2.0]), np.array([0, 0, 1, 1]))
     write_history_csv(tmp_path / "h.csv", h)

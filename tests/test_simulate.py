@@ -98,9 +98,7 @@ def test_free_fall_of_the_com(x64):
     dt = 1e-3
     fixed = jm.simulate(cube, random_controller(1), world, 1.0, dt=dt)
     # Semi-implicit Euler's z_n = z0 - g h^2 n(n+1)/2 = exact(t) - g h t / 2.
-    np.testing.assert_allclose(
-        np.asarray(fixed.com[:, 2]), exact(t) - 0.5 * G * dt * t, atol=1e-9
-    )
+    np.testing.assert_allclose(np.asarray(fixed.com[:, 2]), exact(t) - 0.5 * G * dt * t, atol=1e-9)
 
 
 @pytest.mark.parametrize("builder", [jm.lattices.cube, jm.lattices.pyramid, jm.lattices.chair])
@@ -129,7 +127,9 @@ def test_fixed_step_and_adaptive_solvers_agree_and_converge_at_first_order(x64):
     reference = np.asarray(jm.simulate(cube, None, world, 1.0, solver="tsit5", **kw).points)
     dts = [4e-4, 2e-4, 1e-4, 5e-5]
     errors = [
-        np.abs(np.asarray(jm.simulate(cube, None, world, 1.0, dt=dt, **kw).points) - reference).max()
+        np.abs(
+            np.asarray(jm.simulate(cube, None, world, 1.0, dt=dt, **kw).points) - reference
+        ).max()
         for dt in dts
     ]
     assert errors[-1] < 1e-3  # AGREE: within 1 mm at dt = 5e-5
@@ -158,14 +158,16 @@ def test_vmap_equals_a_python_loop_and_jit_equals_no_jit(x64):
     batched = jax.vmap(run)(controllers)
     jitted = jax.jit(run)
     for b in range(3):
-        one = jax.tree_util.tree_map(lambda a: a[b], controllers)
+        one = jax.tree_util.tree_map(lambda a, b=b: a[b], controllers)
         looped = run(one)
         for name in ("points", "com", "frame"):
             np.testing.assert_allclose(
                 np.asarray(getattr(batched, name)[b]), np.asarray(getattr(looped, name)), atol=1e-12
             )
             np.testing.assert_allclose(
-                np.asarray(getattr(jitted(one), name)), np.asarray(getattr(looped, name)), atol=1e-12
+                np.asarray(getattr(jitted(one), name)),
+                np.asarray(getattr(looped, name)),
+                atol=1e-12,
             )
 
 
@@ -252,9 +254,10 @@ def test_time_grid_fills_the_duration_with_whole_steps():
 
 def test_contact_and_frame_observables():
     cube = jm.lattices.cube()
-    tilted = np.asarray(cube.points) @ np.array(
-        [[np.cos(0.3), 0, np.sin(0.3)], [0, 1, 0], [-np.sin(0.3), 0, np.cos(0.3)]]
-    ).T
+    tilted = (
+        np.asarray(cube.points)
+        @ np.array([[np.cos(0.3), 0, np.sin(0.3)], [0, 1, 0], [-np.sin(0.3), 0, np.cos(0.3)]]).T
+    )
     tr = jm.simulate(
         cube, None, jm.World(gravity=0.0, floor=False), 0.01, initial_state=cube.state(tilted)
     )

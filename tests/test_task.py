@@ -33,7 +33,7 @@ def test_evaluate_equals_the_objective_of_each_simulation(x64):
     params = task.sample(6, key=jr.key(0))
     fitness = np.asarray(task.evaluate(params))
     for b in range(6):
-        one = jax.tree_util.tree_map(lambda a: a[b], params)
+        one = jax.tree_util.tree_map(lambda a, b=b: a[b], params)
         trajectory = jm.simulate(task.body, one, task.world, task.duration, dt=task.dt)
         assert fitness[b] == pytest.approx(float(task.objective(trajectory)), abs=1e-9)
 
@@ -54,7 +54,7 @@ def test_fitness_does_not_depend_on_company_in_batches_of_16_or_more():
     params = task.sample(48, key=jr.key(1))
     fitness = np.asarray(task.evaluate(params))
     for lo, hi in [(0, 16), (16, 48), (5, 30)]:
-        part = jax.tree_util.tree_map(lambda a: a[lo:hi], params)
+        part = jax.tree_util.tree_map(lambda a, lo=lo, hi=hi: a[lo:hi], params)
         np.testing.assert_array_equal(np.asarray(task.evaluate(part)), fitness[lo:hi])
 
 
