@@ -230,3 +230,12 @@ def test_a_run_that_blew_up_draws_its_finite_part(tmp_path):
     fig = viz.filmstrip(trajectory, 2)
     assert [t.get_text() for t in fig.axes[1].texts] == ["t = 1.00 s (blew up)"]
     viz.animate(trajectory, fps=10).save(tmp_path / "blew_up.gif")
+
+
+def test_reflexes_draws_twelve_deformed_shapes():
+    fig = jm.viz.reflexes(jm.lattices.pyramid(), -1.0)
+    axes = fig.get_axes()
+    assert len(axes) == 12
+    assert [ax.get_title().split(":")[0] for ax in axes] == [str(r) for r in range(12)]
+    with pytest.raises(ValueError, match=r"coefficient = 2.0; allowed: -1 <= coefficient <= 1"):
+        jm.viz.reflexes(jm.lattices.cube(), 2.0)
