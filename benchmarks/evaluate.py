@@ -54,7 +54,7 @@ def main() -> None:
         )
         plain = jax.jit(
             jax.vmap(
-                lambda c: task.objective(
+                lambda c, task=task: task.objective(
                     jm.simulate(task.body, c, task.world, task.duration, dt=task.dt)
                 )
             )
@@ -83,7 +83,8 @@ def main() -> None:
                 ""
                 if args.no_baseline
                 else (
-                    f"  plain vmap {row['plain_vmap_median']:8.0f}/s  ratio {row['ratio_to_plain_vmap']:5.2f}"
+                    f"  plain vmap {row['plain_vmap_median']:8.0f}/s"
+                    f"  ratio {row['ratio_to_plain_vmap']:5.2f}"
                 )
             )
             print(

@@ -84,10 +84,9 @@ class Task(eqx.Module):
         worst) rather than raising or returning NaN; count them with
         `jnp.isneginf(fitness)`.
 
-        Results are bitwise reproducible and do not depend on the order of the batch or on
-        the number of devices. In batches of 16 or more a controller's fitness does not
-        depend on the rest of the batch either; smaller batches take a scalar code path
-        whose rounding can differ in the last bits (which a chaotic motion can amplify).
+        Results are bitwise reproducible: a controller's fitness does not depend on the
+        order or size of the batch it comes in, nor on the number of devices (batches under
+        16 are padded to 16, which is why they cost about as much as 16).
         """
         return _evaluate(self, params)
 
@@ -103,15 +102,29 @@ class Task(eqx.Module):
         dt: float | None = None,
         save_dt: float | None = None,
     ) -> Trajectory:
-        """Simulate one controller (playback), with the search settings unless `solver`,
-        `dt` or `save_dt` say otherwise (`solver="tsit5"` for an adaptive check)."""
-        return _simulate_one(
-            self,
-            params,
-            solver,
-            self.dt if dt is None else dt,
-            self.save_dt if save_dt is None else save_dt,
-        )
+        """Simulate one controller (playback) with the search settings, unless `solver`,
+        `dt` or `save_dt` say otherwise (`solver="tsit5"` for an adaptive check).
+
+        With the search's own fixed-step solver the trajectory is computed exactly as
+        `evaluate` computes it, so a controller replays to the very fitness the search
+        recorded (contact-rich motions are chaotic: a different rounding anywhere would
+        grow into a visibly different motion).
+        """
+        dt = self.dt if dt is None else dt
+        save_dt = self.save_dt if save_dt is None else save_dt
+        if solver == "symplectic":
+            task = Task(
+                self.body,
+                self.world,
+                self.space,
+                self.objective,
+                self.duration,
+                dt=dt,
+                save_dt=save_dt,
+            )
+            batch = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], params)
+            return jax.tree_util.tree_map(lambda a: a[0], _trajectories(task, batch))
+        return _simulate_one(self, params, solver, dt, save_dt)
 
     def fitness(self, trajectory: Trajectory) -> Float[Array, "..."]:
         """The objective of one trajectory, or of a batch of them (leading axis)."""
@@ -149,10 +162,22 @@ def _local_fitness(task: Task, params):
     return jax.lax.map(task.objective, trajectories)
 
 
-# XLA's CPU loops process 16 float32 lanes at a time; shorter batches take a scalar path
-# whose rounding differs in the last bits. Splitting a batch only into shares of at least
-# this many keeps results bitwise identical whatever the number of devices.
+# XLA's CPU loops work on 16 float32 lanes at a time; batches shorter than that compile to
+# code whose rounding differs in the last bits, which chaotic contact-rich motion amplifies.
+# Every batch is therefore padded to at least this size, and split over devices only in
+# shares of at least this size: a controller's result is then bitwise the same whatever the
+# batch it comes in and the number of devices.
 _MIN_SHARE = 16
+
+
+def _padded(params, size: int):
+    batch = _batch_size(params)
+    if size <= batch:
+        return params
+    return jax.tree_util.tree_map(
+        lambda a: jnp.concatenate([a, jnp.broadcast_to(a[:1], (size - batch, *a.shape[1:]))]),
+        params,
+    )
 
 
 def _sharded(fn, task: Task, params):
@@ -160,13 +185,11 @@ def _sharded(fn, task: Task, params):
     batches, where splitting buys little, stay on one device)."""
     devices = jax.devices()
     batch = _batch_size(params)
+    if batch < _MIN_SHARE:
+        params = _padded(params, _MIN_SHARE)
     if len(devices) == 1 or batch < _MIN_SHARE * len(devices):
-        return fn(task, params)
-    pad = (-batch) % len(devices)
-    if pad:
-        params = jax.tree_util.tree_map(
-            lambda a: jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad, *a.shape[1:]))]), params
-        )
+        return jax.tree_util.tree_map(lambda a: a[:batch], fn(task, params))
+    params = _padded(params, batch + (-batch) % len(devices))
     mesh = Mesh(np.array(devices), ("batch",))
     dynamic, static = eqx.partition(task, eqx.is_array)
     local = lambda d, p: fn(eqx.combine(d, static), p)

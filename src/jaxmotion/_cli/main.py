@@ -108,14 +108,20 @@ def _run(path: Path, args) -> int:
     )
     if not args.quiet:
         summary = json.loads((folder / "summary.json").read_text())
+        speed = summary.get("steady_evals_per_s")
+        speed = (
+            f"{speed:.0f} evals/s after compiling"
+            if speed
+            else f"{summary['evals_per_s']:.0f} evals/s"
+        )
+        terms = ", ".join(
+            f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}"
+            for k, v in summary["terms"].items()
+        )
         print(
             f"best fitness {summary['best_fitness']:.4g} after {summary['evaluations']} "
-            f"evaluations in {summary['wall_time_s']:.1f} s "
-            f"({summary['evals_per_s']:.0f} evals/s); terms: "
-            + ", ".join(
-                f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}"
-                for k, v in summary["terms"].items()
-            )
+            f"evaluations in {summary['search_time_s']:.1f} s ({speed}); terms: {terms}",
+            file=sys.stderr,
         )
     print(folder)
     return 0
