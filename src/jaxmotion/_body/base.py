@@ -40,7 +40,13 @@ class AbstractDynamics(eqx.Module):
     @abc.abstractmethod
     def observe(self, positions: State, world: World) -> Observation:
         """The observables (points, centre of mass, frame, contact) at the given positions
-        (the first half of the state: observables never depend on velocities)."""
+        (the first half of the state: observables never depend on velocities).
+
+        `positions` may carry any number of trailing batch axes (saved times, controllers);
+        each field of the returned `Observation` then has those axes trailing too (e.g.
+        `com` is `(3, *batch)`, `points` `(num_points, 3, *batch)`). Write it elementwise
+        over them.
+        """
 
 
 class AbstractBody(eqx.Module):

@@ -229,14 +229,44 @@ class LatticeDynamics(AbstractDynamics):
         return v, jnp.stack([ax, ay, az])
 
     def observe(self, positions, world: World) -> Observation:
+        # Written for positions (3, n, *batch) with any trailing batch axes (time, controllers):
+        # everything is elementwise over them, with explicit sums over the masses, so it
+        # vectorises and gives each sample the same rounding whatever the batch.
         x = positions
-        total = jnp.sum(self.masses)
-        com = jnp.sum(x * self.masses, axis=1) / total
+        extra = x.ndim - 2
+        n = x.shape[1]
+        masses = [self.masses[k] for k in range(n)]
+        total = sum(masses)
+        com = sum(masses[k] * x[:, k] for k in range(n)) / total  # (3, *batch)
         rel = x - com[:, None]
-        h = (rel * self.masses) @ jnp.transpose(self.rest_rel)
-        frame = polar_rotation(h) @ self.frame0
-        contact = (x[2] < 0) if world.floor else jnp.zeros(x.shape[1], dtype=bool)
-        return Observation(points=jnp.transpose(x), com=com, frame=frame, contact=contact)
+        # h[a, c] = sum_k m_k rel[a, k] rest_rel[c, k]
+        h = jnp.stack(
+            [
+                jnp.stack(
+                    [
+                        sum(masses[k] * self.rest_rel[c, k] * rel[a, k] for k in range(n))
+                        for c in range(3)
+                    ]
+                )
+                for a in range(3)
+            ]
+        )
+        rotation = polar_rotation(h)
+        # frame = rotation @ frame0, with the batch axes trailing.
+        frame = jnp.stack(
+            [
+                jnp.stack(
+                    [sum(rotation[a, b] * self.frame0[b, c] for b in range(3)) for c in range(3)]
+                )
+                for a in range(3)
+            ]
+        )
+        if world.floor:
+            contact = x[2] < 0
+        else:
+            contact = jnp.zeros(x.shape[1:], dtype=bool)
+        del extra
+        return Observation(points=jnp.swapaxes(x, 0, 1), com=com, frame=frame, contact=contact)
 
 
 def _validated(points, springs, masses, stiffness, damping, rest_lengths, frame):

@@ -155,8 +155,7 @@ def simulate(
         atol=atol,
         max_steps=max_steps,
     )
-    observations = jax.vmap(lambda p: dynamics.observe(p, world))(positions)
-    return _trajectory(grid, observations, ok)
+    return _trajectory(grid, _observe(dynamics, world, positions, batched=False), ok)
 
 
 def _solve(grid, vector_field, y0, args, solver, *, rtol=None, atol=None, max_steps=100_000):
@@ -258,13 +257,29 @@ def simulate_batch(
         return batched_rates(y, batched_actuation(t, ctrl, plan))
 
     positions, ok = _solve(grid, vector_field, y0, args, "symplectic")
-    # positions: a pytree of (time, ..., batch) arrays. Observe one controller at a time
-    # (`lax.map`), so that each controller's observables are computed by the same compiled
-    # code whatever the batch size: results stay bitwise independent of the batch.
-    batch_first = jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, -1, 0), positions)
-    observe_all = jax.vmap(lambda p: dynamics.observe(p, world))
-    observations = jax.lax.map(observe_all, batch_first)
-    return _trajectory(grid, observations, ok)
+    return _trajectory(grid, _observe(dynamics, world, positions, batched=True), ok)
+
+
+def _observe(dynamics, world, positions, *, batched: bool) -> Observation:
+    """Observables of saved positions, all samples at once.
+
+    `positions` has leaves `(time, *shape)` (single) or `(time, *shape, batch)` (batched).
+    The time (and batch) axes are moved to the back, where `observe` treats them elementwise
+    (the batch stays the contiguous axis, as in the simulation), and the fields come back
+    as `(time, ...)` or `(batch, time, ...)`.
+    """
+    if batched:
+        trailing = jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -2), positions)
+    else:
+        trailing = jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -1), positions)
+    obs = dynamics.observe(trailing, world)
+    k = 2 if batched else 1
+
+    def lead(a):
+        a = jnp.moveaxis(a, tuple(range(a.ndim - k, a.ndim)), tuple(range(k)))
+        return jnp.swapaxes(a, 0, 1) if batched else a
+
+    return jax.tree_util.tree_map(lead, obs)
 
 
 __all__ = ["SOLVERS", "TimeGrid", "simulate", "simulate_batch", "time_grid"]
