@@ -1,107 +1,298 @@
-"""Throughput of `Task.evaluate` (evaluations per second) against the plain `jax.vmap` of the
-single-controller simulation, measured in the same run.
+"""Throughput of `Task.evaluate`, the hot function, against baselines measured in the same run.
 
-    python benchmarks/evaluate.py [--batches 1,100,1000] [--lattices cube] [--repeats 5]
+    python benchmarks/evaluate.py                       # everything (several minutes)
+    python benchmarks/evaluate.py --lattices cube --batches 100,1000 --dts 0.001
 
-One evaluation is one simulation of `--duration` seconds (default 5 s) at `--dt` (default
-1 ms) of a 4-regime controller, scored by forward + upright. Prints a table of medians and
-writes every figure to `benchmarks/evaluate.json` (or `--json PATH`) for comparison across
-commits. The batch is sharded over one CPU device per core, as the CLI does.
+For each lattice (cube, pyramid, chair), batch size (1, 100, 1000, 10000) and step (1 ms,
+the peers' setting, and the accuracy-matched step), one evaluation is one 5 s simulation of a
+4-regime controller scored by forward + upright. Columns (evaluations per second, medians of
+`--repeats` timed calls after a first, compiling call):
+
+- `evaluate`: `Task.evaluate`, the batch split over one CPU device per core.
+- `vmap`: `jax.jit(jax.vmap(...))` of the single-controller `simulate` plus the objective:
+  what a user gets by vmapping the documented single-controller function.
+- `numpy`: the same model in vectorised NumPy (`benchmarks/numpy_model.py`), float32.
+- `perf-lab`: perf-lab's best JAX layout (`dense_bl_ms`, sharded the same way) for the cube
+  at 1 ms, if `../shared/perf-lab` is there: a simpler model (one kind of reflex, no
+  observation or objective), the reference the project measured before this code existed.
+
+Also measured: the compile time of `evaluate`, its peak memory at B = 10,000 (a fresh
+process, `ru_maxrss`), and diffrax's overhead against a `lax.scan` of the same step. Results
+go to `benchmarks/evaluate.json` for comparison across commits.
 """
 
 import argparse
 import json
+import os
 import platform
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
 
-import jaxmotion as jm
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    p.add_argument("--batches", default="1,100,1000")
-    p.add_argument("--lattices", default="cube")
-    p.add_argument("--duration", type=float, default=5.0)
-    p.add_argument("--dt", type=float, default=1e-3)
-    p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--no-baseline", action="store_true", help="skip the plain vmap baseline")
-    p.add_argument("--json", default=str(Path(__file__).with_suffix(".json")))
-    args = p.parse_args()
-    jm.use_cpu_cores()
+def timed(fn, args, repeats, budget=2.0):
+    """First call (compiles) and the median of later calls, in seconds."""
+    start = time.perf_counter()
+    out = fn(*args)
+    _block(out)
+    first = time.perf_counter() - start
+    times = []
+    while len(times) < repeats or (sum(times) < budget and len(times) < 4 * repeats):
+        start = time.perf_counter()
+        _block(fn(*args))
+        times.append(time.perf_counter() - start)
+    return first, statistics.median(times), out
 
+
+def _block(x):
     import jax
-    import jax.random as jr
+
+    jax.block_until_ready(x)
+
+
+def make_task(name, dt):
+    import jaxmotion as jm
 
     builders = {
         "cube": jm.lattices.cube,
         "pyramid": jm.lattices.pyramid,
         "chair": jm.lattices.chair,
     }
+    return jm.Task(
+        builders[name](),
+        jm.World(),
+        jm.RegimesSpace(4, 1.0),
+        jm.Objective({"forward": 1.0, "upright": -10.0}),
+        duration=5.0,
+        dt=dt,
+    )
+
+
+PEAK = r"""
+import resource, sys, json
+import jaxmotion as jm
+jm.use_cpu_cores()
+import jax.random as jr
+sys.path.insert(0, sys.argv[3])
+from evaluate import make_task
+task = make_task(sys.argv[1], float(sys.argv[2]))
+params = task.sample(10_000, key=jr.key(0))
+task.evaluate(params).block_until_ready()
+task.evaluate(params).block_until_ready()
+print(json.dumps({"peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def perf_lab_rate(path: Path, batch: int, repeats: int) -> float | None:
+    """perf-lab's `dense_bl_ms` at dt = 1 ms, sharded over the devices like `evaluate`."""
+    if not (path / "jax_model.py").exists():
+        return None
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+    from jax.sharding import Mesh, PartitionSpec
+
+    sys.path.insert(0, str(path))
+    import common
+    import jax_model
+
+    sim = jax_model.make_dense_bl_sim(1e-3, manual_sum=True)
+    args = jax_model.ctrl_arrays(common.make_controllers(batch, seed=3), jnp.float32)
+    devices = jax.devices()
+    if len(devices) > 1 and batch % len(devices) == 0:
+        mesh = Mesh(np.array(devices), ("b",))
+        spec = PartitionSpec("b")
+        fn = jax.jit(
+            jax.shard_map(sim, mesh=mesh, in_specs=(spec,) * 4, out_specs=spec, check_vma=False)
+        )
+    else:
+        fn = jax.jit(sim)
+    _, seconds, _ = timed(fn, args, repeats)
+    return batch / seconds
+
+
+def diffrax_overhead(batch: int, dt: float, repeats: int) -> dict:
+    """`simulate_batch`'s diffrax solve against a `lax.scan` of the same step, same saving."""
+    import jax
+    import jax.numpy as jnp
+    import jax.random as jr
+
+    from jaxmotion._sim.simulate import _solve, time_grid
+
+    task = make_task("cube", dt)
+    params = task.sample(batch, key=jr.key(0))
+    grid = time_grid(task.duration, task.dt, task.save_dt)
+    dynamics = task.body.dynamics()
+    world = task.world
+
+    def setup(params):
+        plans = jax.vmap(lambda c: c.prepare(task.body))(params)
+        last = lambda tree: jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -1), tree)
+        y0 = jax.tree_util.tree_map(
+            lambda a: jnp.broadcast_to(a[..., None], (*a.shape, batch)), task.body.initial_state()
+        )
+        return (last(params), last(plans)), y0
+
+    def vector_field(t, y, args):
+        controller, plan = args
+        return dynamics.rates(y, controller.actuation(t, plan), world)
+
+    @jax.jit
+    def with_diffrax(params):
+        args, y0 = setup(params)
+        positions, _ = _solve(grid, vector_field, y0, args, "symplectic")
+        return positions
+
+    @jax.jit
+    def with_scan(params):
+        args, y0 = setup(params)
+        save_ts = jnp.asarray(grid.save_times, dtype=float)
+
+        def interval(y, k):
+            t0 = save_ts[k]
+            h = (save_ts[k + 1] - t0) / grid.substeps
+
+            def euler(i, y):
+                x, v = y
+                _, a = vector_field(t0 + i * h, y, args)
+                v = v + h * a
+                return x + h * v, v
+
+            y = jax.lax.fori_loop(0, grid.substeps, euler, y)
+            return y, y[0]
+
+        _, saved = jax.lax.scan(interval, y0, jnp.arange(grid.num_saves))
+        return jnp.concatenate([y0[0][None], saved])
+
+    out = {}
+    for _ in range(2):  # interleaved, twice, against drift of the machine's speed
+        for name, fn in (("scan", with_scan), ("diffrax", with_diffrax)):
+            _, seconds, _ = timed(fn, (params,), repeats)
+            out.setdefault(name, []).append(seconds)
+    scan, dfx = min(out["scan"]), min(out["diffrax"])
+    return {"batch": batch, "dt": dt, "scan_s": scan, "diffrax_s": dfx, "ratio": dfx / scan}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--lattices", default="cube,pyramid,chair")
+    p.add_argument("--batches", default="1,100,1000,10000")
+    p.add_argument("--dts", default=None, help="steps, s (default: 0.001 and the Task default)")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--no-numpy", action="store_true")
+    p.add_argument("--no-vmap", action="store_true")
+    p.add_argument("--no-memory", action="store_true")
+    p.add_argument("--perf-lab", default=str(HERE.parent.parent / "shared" / "perf-lab"))
+    p.add_argument("--json", default=str(HERE / "evaluate.json"))
+    args = p.parse_args()
+
+    import jaxmotion as jm
+
+    jm.use_cpu_cores()
+    import inspect
+
+    import jax
+    import jax.random as jr
+    import numpy as np
+    import numpy_model
+
+    default_dt = inspect.signature(jm.Task).parameters["dt"].default
+    dts = [float(s) for s in args.dts.split(",")] if args.dts else sorted({1e-3, default_dt})
     rows = []
+    print(
+        f"{len(jax.devices())} CPU devices; evaluations per second (median of >= {args.repeats} calls)"
+    )
+    header = f"{'lattice':8} {'dt ms':>5} {'B':>6} {'evaluate':>9} {'compile s':>9} {'vmap':>7} {'x vmap':>7} {'numpy':>7} {'x numpy':>8} {'perf-lab':>9} {'x perf-lab':>10}"
+    print(header)
     for name in args.lattices.split(","):
-        task = jm.Task(
-            builders[name](),
-            jm.World(),
-            jm.RegimesSpace(4, 1.0),
-            jm.Objective({"forward": 1.0, "upright": -10.0}),
-            duration=args.duration,
-            dt=args.dt,
-        )
-        plain = jax.jit(
-            jax.vmap(
-                lambda c, task=task: task.objective(
-                    jm.simulate(task.body, c, task.world, task.duration, dt=task.dt)
+        for dt in dts:
+            task = make_task(name, dt)
+            plain = jax.jit(
+                jax.vmap(
+                    lambda c, task=task: task.objective(
+                        jm.simulate(
+                            task.body,
+                            c,
+                            task.world,
+                            task.duration,
+                            dt=task.dt,
+                            save_dt=task.save_dt,
+                        )
+                    )
                 )
             )
-        )
-        for batch in [int(b) for b in args.batches.split(",")]:
-            params = task.sample(batch, key=jr.key(0))
-            row = {"lattice": name, "batch": batch}
-            for label, fn in [("evaluate", task.evaluate)] + (
-                [] if args.no_baseline else [("plain_vmap", plain)]
-            ):
-                start = time.perf_counter()
-                fn(params).block_until_ready()
-                compile_s = time.perf_counter() - start
-                times = []
-                for _ in range(args.repeats):
+            for batch in [int(b) for b in args.batches.split(",")]:
+                params = task.sample(batch, key=jr.key(0))
+                first, seconds, fitness = timed(task.evaluate, (params,), args.repeats)
+                row = dict(
+                    lattice=name,
+                    dt=dt,
+                    batch=batch,
+                    evaluate=batch / seconds,
+                    compile_s=first - seconds,
+                    nonfinite=int(np.sum(~np.isfinite(np.asarray(fitness)))),
+                )
+                if not args.no_vmap and batch <= 1000:
+                    _, s, _ = timed(plain, (params,), max(2, args.repeats // 2))
+                    row["vmap"] = batch / s
+                if not args.no_numpy and batch <= 1000:
+                    model = numpy_model.prepare(task, params, dtype=np.float32)
                     start = time.perf_counter()
-                    fn(params).block_until_ready()
-                    times.append(time.perf_counter() - start)
-                row[f"{label}_evals_per_s"] = [batch / t for t in times]
-                row[f"{label}_median"] = batch / statistics.median(times)
-                row[f"{label}_first_call_s"] = compile_s
-            if not args.no_baseline:
-                row["ratio_to_plain_vmap"] = row["evaluate_median"] / row["plain_vmap_median"]
-            rows.append(row)
-            base = (
-                ""
-                if args.no_baseline
-                else (
-                    f"  plain vmap {row['plain_vmap_median']:8.0f}/s"
-                    f"  ratio {row['ratio_to_plain_vmap']:5.2f}"
+                    numpy_model.simulate(model)
+                    row["numpy"] = batch / (time.perf_counter() - start)
+                if name == "cube" and dt == 1e-3 and batch in (100, 1000):
+                    rate = perf_lab_rate(Path(args.perf_lab), batch, args.repeats)
+                    if rate:
+                        row["perf_lab"] = rate
+                for key in ("vmap", "numpy", "perf_lab"):
+                    if key in row:
+                        row[f"x_{key}"] = row["evaluate"] / row[key]
+                rows.append(row)
+                cell = lambda k, fmt, row=row: format(row[k], fmt) if k in row else "-"
+                print(
+                    f"{name:8} {dt * 1e3:5.2g} {batch:6d} {row['evaluate']:9.0f} {row['compile_s']:9.1f} "
+                    f"{cell('vmap', '7.0f'):>7} {cell('x_vmap', '7.2f'):>7} {cell('numpy', '7.0f'):>7} "
+                    f"{cell('x_numpy', '8.1f'):>8} {cell('perf_lab', '9.0f'):>9} {cell('x_perf_lab', '10.2f'):>10}",
+                    flush=True,
                 )
-            )
+    result = {"rows": rows}
+    if "cube" in args.lattices:
+        overhead = [diffrax_overhead(b, 1e-3, args.repeats) for b in (1, 100, 1000)]
+        for o in overhead:
             print(
-                f"{name:8s} B={batch:6d}  evaluate {row['evaluate_median']:8.0f} evals/s "
-                f"(first call {row['evaluate_first_call_s']:.1f} s){base}",
-                flush=True,
+                f"diffrax vs lax.scan, cube B={o['batch']:5d}: {o['diffrax_s'] * 1e3:8.1f} ms vs "
+                f"{o['scan_s'] * 1e3:8.1f} ms, ratio {o['ratio']:.3f}"
             )
-    meta = {
+        result["diffrax_overhead"] = overhead
+    if not args.no_memory:
+        memory = []
+        for name in args.lattices.split(","):
+            out = subprocess.run(
+                [sys.executable, "-c", PEAK, name, str(default_dt), str(HERE)],
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            peak = json.loads(out.stdout.strip().splitlines()[-1])["peak_mb"]
+            memory.append({"lattice": name, "batch": 10_000, "peak_mb": peak})
+            print(f"peak memory of a fresh process evaluating {name} at B=10000: {peak:.0f} MB")
+        result["memory"] = memory
+    result["meta"] = {
         "devices": len(jax.devices()),
+        "cpus": os.cpu_count(),
         "jax": jax.__version__,
-        "python": sys.version.split()[0],
+        "python": platform.python_version(),
         "machine": platform.machine(),
-        "duration": args.duration,
-        "dt": args.dt,
         "repeats": args.repeats,
     }
-    Path(args.json).write_text(json.dumps({"meta": meta, "rows": rows}, indent=2) + "\n")
+    Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {args.json}")
 
 

@@ -129,7 +129,7 @@ class Task(eqx.Module):
     def fitness(self, trajectory: Trajectory) -> Float[Array, "..."]:
         """The objective of one trajectory, or of a batch of them (leading axis)."""
         if trajectory.com.ndim == 3:
-            return jax.lax.map(self.objective, trajectory)
+            return jax.vmap(self.objective)(trajectory)
         return self.objective(trajectory)
 
 
@@ -154,12 +154,29 @@ def _batch_size(params) -> int:
     return sizes.pop()
 
 
-def _local_fitness(task: Task, params):
+# Controllers simulated at once on one device. Larger batches are cut into chunks of this
+# size, run one after the other, so memory stays bounded (the saved samples of 10,000
+# controllers would not fit comfortably) while each chunk still fills the vector units.
+_CHUNK = 1024
+
+
+def _chunk_fitness(task: Task, params):
     trajectories = simulate_batch(
         task.body, params, task.world, task.duration, dt=task.dt, save_dt=task.save_dt
     )
-    # One controller at a time, so the arithmetic does not depend on the batch size.
-    return jax.lax.map(task.objective, trajectories)
+    return jax.vmap(task.objective)(trajectories)
+
+
+def _local_fitness(task: Task, params):
+    batch = _batch_size(params)
+    if batch <= _CHUNK:
+        return _chunk_fitness(task, params)
+    chunks = -(-batch // _CHUNK)
+    stacked = jax.tree_util.tree_map(
+        lambda a: a.reshape(chunks, _CHUNK, *a.shape[1:]), _padded(params, chunks * _CHUNK)
+    )
+    fitness = jax.lax.map(lambda p: _chunk_fitness(task, p), stacked)
+    return fitness.reshape(-1)[:batch]
 
 
 # XLA's CPU loops work on 16 float32 lanes at a time; batches shorter than that compile to
