@@ -5,6 +5,7 @@ score a motion, and stochastic searches that find good parameters; the simulator
 diffrax, vectorised with `vmap` and differentiable. Fitness is always maximised.
 """
 
+from . import checks as checks
 from . import lattices as lattices
 from ._body.base import AbstractBody as AbstractBody
 from ._body.base import AbstractDynamics as AbstractDynamics
@@ -64,6 +65,7 @@ __all__ = [
     "Task",
     "Trajectory",
     "World",
+    "checks",
     "deform",
     "floor_force",
     "lattices",

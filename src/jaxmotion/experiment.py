@@ -13,6 +13,7 @@ from ._cli.results import controller_from_dict as controller_from_dict
 from ._cli.results import controller_to_dict as controller_to_dict
 from ._cli.results import load_result as load_result
 from ._cli.results import read_history_csv as read_history_csv
+from ._cli.results import run_check as run_check
 from ._cli.results import run_experiment as run_experiment
 
 __all__ = [
@@ -25,5 +26,6 @@ __all__ = [
     "load_result",
     "parse_config",
     "read_history_csv",
+    "run_check",
     "run_experiment",
 ]

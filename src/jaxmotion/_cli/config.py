@@ -175,7 +175,7 @@ CONTROLLER = {
 SIMULATION = {
     "duration": Key("number", _REQUIRED, _positive, "> 0 (s)"),
     "dt": Key("number", 1e-3, _positive, "> 0 (s)"),
-    "save_dt": Key("number", 0.01, _positive, "> 0 (s)"),
+    "save_dt": Key("number", 0.02, _positive, "> 0 (s)"),
 }
 
 SEARCH = {
@@ -196,6 +196,15 @@ OUTPUT = {
     "fps": Key("integer", 25, lambda v: 1 <= v <= 100, "from 1 to 100"),
 }
 
+CHECK = {
+    "motion": Key(
+        "string",
+        _REQUIRED,
+        lambda v: v in ("leap", "somersault", "pirouette"),
+        '"leap", "somersault" or "pirouette"',
+    ),
+}
+
 TOP = {
     "name": Key(
         "string",
@@ -206,7 +215,16 @@ TOP = {
     "seed": Key("integer", 0, lambda v: 0 <= v < 2**32, "from 0 to 2**32 - 1"),
 }
 
-SECTIONS = ("body", "world", "controller", "objective", "simulation", "search", "output")
+SECTIONS = (
+    "body",
+    "world",
+    "controller",
+    "objective",
+    "simulation",
+    "search",
+    "output",
+    "check",
+)
 
 
 @dataclass(frozen=True)
@@ -218,6 +236,7 @@ class Experiment:
     - `task`: the `Task` to search.
     - `search`: the search settings (`algorithm`, `evaluations`, `size`, `batch`).
     - `output`: where and what to write (`directory`, `animation`, `fps`).
+    - `check`: the motion check to run on the best controller (`jaxmotion.checks`), or None.
     """
 
     name: str
@@ -226,6 +245,7 @@ class Experiment:
     task: Task
     search: dict[str, Any] = field(default_factory=dict)
     output: dict[str, Any] = field(default_factory=dict)
+    check: str | None = None
 
 
 def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experiment:
@@ -261,6 +281,7 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
     simulation_cfg = _read_section("[simulation]", raw["simulation"], SIMULATION)
     search_cfg = _read_section("[search]", raw.get("search", {}), SEARCH)
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
+    check_cfg = _read_section("[check]", raw["check"], CHECK) if "check" in raw else None
 
     def build(section: str, make: Callable[[], Any]):
         try:
@@ -308,6 +329,8 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
         search=search_cfg,
         output=output_cfg,
     )
+    if check_cfg is not None:
+        resolved["check"] = check_cfg
     return Experiment(
         name=head["name"],
         seed=head["seed"],
@@ -315,6 +338,7 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
         task=task,
         search=search_cfg,
         output=output_cfg,
+        check=None if check_cfg is None else check_cfg["motion"],
     )
 
 

@@ -123,6 +123,13 @@ def _run(path: Path, args) -> int:
             f"evaluations in {summary['search_time_s']:.1f} s ({speed}); terms: {terms}",
             file=sys.stderr,
         )
+        if summary.get("check"):
+            check = summary["check"]
+            lines = [
+                f"  {'pass' if ok else 'FAIL'}  {text}" for text, ok in check["criteria"].items()
+            ]
+            verdict = "passed" if check["passed"] else "failed"
+            print(f"{check['name']} check {verdict}:\n" + "\n".join(lines), file=sys.stderr)
     print(folder)
     return 0
 
@@ -135,17 +142,18 @@ def _replay(args) -> int:
     trajectory = task.simulate(controller, solver=args.solver)
     values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
     fitness = float(task.objective(trajectory))
-    print(
-        json.dumps(
-            {
-                "fitness": fitness,
-                "terms": values,
-                "finite": bool(trajectory.finite),
-                "solver": args.solver,
-            },
-            indent=2,
-        )
-    )
+    from .results import run_check
+
+    report = {
+        "fitness": fitness,
+        "terms": values,
+        "finite": bool(trajectory.finite),
+        "solver": args.solver,
+    }
+    check = run_check(experiment, trajectory)
+    if check is not None:
+        report["check"] = check.to_dict()
+    print(json.dumps(report, indent=2))
     if args.gif:
         from ..viz import animate
 

@@ -158,6 +158,7 @@ def run_experiment(
         # Replayed with the search's own settings, so its terms are what the search scored.
         trajectory = task.simulate(best)
         values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
+        check = run_check(experiment, trajectory)
         replay_fitness = float(task.objective(trajectory))
         evaluations = len(result.history)
 
@@ -189,6 +190,7 @@ def run_experiment(
             "steady_evals_per_s": round(timing.get("steady_evals_per_s", float("nan")), 1)
             if "steady_evals_per_s" in timing
             else None,
+            "check": None if check is None else check.to_dict(),
             "devices": len(jax.devices()),
             "float": str(jnp.result_type(float)),
             "jax": jax.__version__,
@@ -199,6 +201,21 @@ def run_experiment(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+def run_check(experiment: Experiment, trajectory):
+    """The experiment's motion check on a trajectory of its task (None if it has none)."""
+    if experiment.check is None:
+        return None
+    import inspect
+
+    from .._checks import CHECKS
+
+    check = CHECKS[experiment.check]
+    task = experiment.task
+    available = {"body_length": float(task.body.body_length), "period": task.space.t_per}
+    wanted = inspect.signature(check).parameters
+    return check(trajectory, **{k: v for k, v in available.items() if k in wanted})
 
 
 def load_result(folder: str | Path) -> tuple[Experiment, AbstractController]:

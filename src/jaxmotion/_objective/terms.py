@@ -103,7 +103,7 @@ def on_ground_at_end(trajectory: Trajectory, min_points: int = 1) -> Float[Array
 
 
 @register_term("rotation")
-def rotation(trajectory: Trajectory, axis: str = "any") -> Float[Array, ""]:
+def rotation(trajectory: Trajectory, axis: str = "any", absolute: bool = False) -> Float[Array, ""]:
     """Rotation of the body frame (Table 1's "total rotation of a triplet of point masses
     about the centre of mass"; the frame is the best-fit rotation of all the masses).
 
@@ -112,14 +112,16 @@ def rotation(trajectory: Trajectory, axis: str = "any") -> Float[Array, ""]:
     body axis (rad), accumulated from the increments between samples, positive by the
     right-hand rule. With forward +x, left +y and up +z, pitching nose-down is positive about
     `"left"`, so a backward somersault is negative about `"left"`, and rolling onto the right
-    side is positive about `"forward"`.
+    side is positive about `"forward"`. `absolute=True` gives the size of the net rotation
+    about the axis whichever way it went (to penalise rolling or turning).
     """
     inc = _increments(trajectory.frame, world=False)
     if axis == "any":
         return jnp.sum(jnp.sqrt(jnp.sum(inc * inc, axis=-1) + 1e-20))
     if axis not in _AXES:
         raise ValueError(f"rotation axis = {axis!r}; allowed: any, forward, left, up")
-    return jnp.sum(inc[:, _AXES[axis]])
+    net = jnp.sum(inc[:, _AXES[axis]])
+    return jnp.abs(net) if absolute else net
 
 
 @register_term("net_yaw")

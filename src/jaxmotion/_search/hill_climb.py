@@ -40,7 +40,7 @@ def _check_positive_int(name: str, value) -> int:
 
 
 class ParallelHillClimb(eqx.Module):
-    """Parallel hill climbing (first paper, Figure 4), as an init/step pair.
+    """Parallel hill climbing (first paper, Figure 4), as pure init / ask / tell functions.
 
     The search set holds `size` controllers ranked by fitness. Each step draws `batch` members
     uniformly (with replacement), perturbs each (the family's `perturb`, Table 2 for
@@ -48,6 +48,10 @@ class ParallelHillClimb(eqx.Module):
     lowest-ranked, so the set keeps its size. Ties rank the older controller first. With
     `batch=1` this is exactly the paper's algorithm; a larger batch draws all its members
     from the set as it was before the step. Fitness is maximised.
+
+    `ask` and `tell` are jitted; between them the driver calls `task.evaluate`, so the
+    simulation compiles once per batch size and is shared by every search with that shape
+    (the initial set is evaluated in batches of the same size). `step` composes the three.
     """
 
     size: int = eqx.field(static=True)
@@ -62,58 +66,98 @@ class ParallelHillClimb(eqx.Module):
     ) -> tuple[HillClimbState, Float[Array, " size"]]:
         """Draw and evaluate the initial search set. Returns the state and the fitness of
         the initial controllers in the order they were drawn."""
-        return _init(self, task, key)
+        population, next_key = _sample(self, task, key)
+        fitness = _evaluate_in_batches(task, population, self.batch)
+        return _rank(population, fitness, next_key), fitness
+
+    def ask(self, task: Task, state: HillClimbState) -> AbstractController:
+        """The `batch` perturbed copies of randomly drawn members to evaluate next."""
+        return _ask(self, task, state)
+
+    def tell(
+        self,
+        state: HillClimbState,
+        children: AbstractController,
+        fitness: Float[Array, " batch"],
+        num_valid: int | Int[Array, ""] | None = None,
+    ) -> HillClimbState:
+        """Insert evaluated children by rank and drop the lowest-ranked. Only the first
+        `num_valid` children (default all) are inserted: the rest are discarded (used to end
+        a search on an exact evaluation count without a new compilation)."""
+        if num_valid is None:
+            num_valid = self.batch
+        return _tell(self, state, children, fitness, jnp.asarray(num_valid, dtype=jnp.int32))
 
     def step(
         self, task: Task, state: HillClimbState, num_valid: int | Int[Array, ""] | None = None
     ) -> tuple[HillClimbState, Float[Array, " batch"]]:
-        """One step. Returns the new state and the fitness of this step's `batch` evaluations.
-        Only the first `num_valid` (default all) are inserted; the rest are discarded (used
-        to end a search on an exact evaluation count without a new compilation)."""
-        if num_valid is None:
-            num_valid = self.batch
-        return _step(self, task, state, jnp.asarray(num_valid, dtype=jnp.int32))
+        """ask, evaluate, tell. Returns the new state and the fitness of this step's `batch`
+        evaluations."""
+        children = self.ask(task, state)
+        fitness = task.evaluate(children)
+        return self.tell(state, children, fitness, num_valid), fitness
 
 
-@eqx.filter_jit
-def _init(search: ParallelHillClimb, task: Task, key):
-    sample_key, next_key = jr.split(key)
-    population = task.sample(search.size, key=sample_key)
-    fitness = task.evaluate(population)
-    order = jnp.argsort(-fitness, stable=True)
-    population = jax.tree_util.tree_map(lambda a: a[order], population)
-    state = HillClimbState(
-        population=population,
-        fitness=fitness[order],
-        key=next_key,
-        step=jnp.asarray(0, dtype=jnp.int32),
-        evaluations=jnp.asarray(search.size, dtype=jnp.int32),
+def _evaluate_in_batches(task: Task, population, batch: int):
+    """Evaluate a population with calls of exactly `batch` controllers (the last one padded)
+    so that it reuses the compilation of the search steps."""
+    size = jax.tree_util.tree_leaves(population)[0].shape[0]
+    calls = -(-size // batch)
+    padded = jax.tree_util.tree_map(
+        lambda a: jnp.concatenate(
+            [a, jnp.broadcast_to(a[:1], (calls * batch - size, *a.shape[1:]))]
+        ),
+        population,
     )
-    return state, fitness
+    parts = [
+        task.evaluate(jax.tree_util.tree_map(lambda a, k=k: a[k * batch : (k + 1) * batch], padded))
+        for k in range(calls)
+    ]
+    return jnp.concatenate(parts)[:size]
 
 
 @eqx.filter_jit
-def _step(search: ParallelHillClimb, task: Task, state: HillClimbState, num_valid):
-    pick_key, perturb_key, next_key = jr.split(state.key, 3)
+def _sample(search: ParallelHillClimb, task: Task, key):
+    sample_key, next_key = jr.split(key)
+    return task.sample(search.size, key=sample_key), next_key
+
+
+@eqx.filter_jit
+def _rank(population, fitness, key) -> HillClimbState:
+    order = jnp.argsort(-fitness, stable=True)
+    return HillClimbState(
+        population=jax.tree_util.tree_map(lambda a: a[order], population),
+        fitness=fitness[order],
+        key=key,
+        step=jnp.asarray(0, dtype=jnp.int32),
+        evaluations=jnp.asarray(fitness.shape[0], dtype=jnp.int32),
+    )
+
+
+@eqx.filter_jit
+def _ask(search: ParallelHillClimb, task: Task, state: HillClimbState):
+    pick_key, perturb_key = jr.split(jr.fold_in(state.key, state.step))
     picks = jr.randint(pick_key, (search.batch,), 0, search.size)
     parents = jax.tree_util.tree_map(lambda a: a[picks], state.population)
-    children = jax.vmap(lambda p, k: task.space.perturb(p, key=k))(
+    return jax.vmap(lambda p, k: task.space.perturb(p, key=k))(
         parents, jr.split(perturb_key, search.batch)
     )
-    fitness = task.evaluate(children)
+
+
+@eqx.filter_jit
+def _tell(search: ParallelHillClimb, state: HillClimbState, children, fitness, num_valid):
     valid = jnp.arange(search.batch) < num_valid
     ranked = jnp.concatenate([state.fitness, jnp.where(valid, fitness, -jnp.inf)])
     # Stable sort on -fitness: among equal fitness the incumbents (listed first) rank higher.
     keep = jnp.argsort(-ranked, stable=True)[: search.size]
     both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), state.population, children)
-    new_state = HillClimbState(
+    return HillClimbState(
         population=jax.tree_util.tree_map(lambda a: a[keep], both),
         fitness=ranked[keep],
-        key=next_key,
+        key=state.key,
         step=state.step + 1,
         evaluations=state.evaluations + num_valid,
     )
-    return new_state, fitness
 
 
 @dataclass(frozen=True)

@@ -59,7 +59,7 @@ def time_grid(duration, dt, save_dt=None) -> TimeGrid:
     """Check the timing arguments and fix the save intervals and steps.
 
     The duration is cut into `round(duration / save_dt)` equal save intervals (`save_dt`
-    defaults to 10 ms, or `dt` if that is longer), and each interval into
+    defaults to 20 ms, or `dt` if that is longer), and each interval into
     `round(save_interval / dt)` equal steps; so the step actually taken can differ a little
     from `dt`. Raises `ValueError` naming the argument for anything not a positive number of
     seconds, or a `dt` or `save_dt` longer than `duration`.
@@ -67,7 +67,7 @@ def time_grid(duration, dt, save_dt=None) -> TimeGrid:
     _check_seconds("duration", duration)
     _check_seconds("dt", dt)
     if save_dt is None:
-        save_dt = min(max(0.01, dt), duration)
+        save_dt = min(max(0.02, dt), duration)
     _check_seconds("save_dt", save_dt)
     for name, value in (("dt", dt), ("save_dt", save_dt)):
         if value > duration * (1 + 1e-9):
@@ -117,7 +117,7 @@ def simulate(
     - `duration`: simulated time in seconds.
     - `dt`: step of the fixed-step solver (rounded so whole steps fill `duration`); for the
         adaptive solvers, the first step tried.
-    - `save_dt`: interval between saved samples (rounded to whole steps; default ~10 ms).
+    - `save_dt`: interval between saved samples (rounded to whole steps; default 20 ms).
         The final state is always saved.
     - `solver`: `"symplectic"` (semi-implicit Euler at fixed `dt`: the fast path of the
         search) or `"tsit5"` / `"dopri5"` (adaptive fifth order with error control

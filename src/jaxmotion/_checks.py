@@ -1,0 +1,210 @@
+"""Reproduction checks: does a motion really leap, somersault or pirouette?
+
+Each check is a function of one (unbatched) `Trajectory` with documented thresholds, and
+returns a `CheckResult` that says which criteria held and what was measured. They encode the
+first paper's Figures 7-9 (the spider's leap, the poodle's somersault, the table's pirouette)
+as numbers a user can test their own results against.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._objective.terms import net_yaw, rotation
+from ._sim.trajectory import Trajectory
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """The verdict of a motion check.
+
+    - `name`: which check.
+    - `passed`: whether every criterion held.
+    - `figures`: what was measured (lengths in m or body lengths, angles in degrees).
+    - `criteria`: each criterion, in words, and whether it held.
+    """
+
+    name: str
+    passed: bool
+    figures: dict[str, float] = field(default_factory=dict)
+    criteria: dict[str, bool] = field(default_factory=dict)
+
+    def __bool__(self) -> bool:
+        return self.passed
+
+    def summary(self) -> str:
+        """One line per criterion, marked pass or fail, then the verdict."""
+        lines = [f"{'pass' if ok else 'FAIL'}  {text}" for text, ok in self.criteria.items()]
+        lines.append(f"{self.name}: {'passed' if self.passed else 'failed'}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "passed": self.passed,
+            "figures": dict(self.figures),
+            "criteria": dict(self.criteria),
+        }
+
+
+def _single(trajectory: Trajectory, caller: str) -> dict[str, np.ndarray]:
+    if not isinstance(trajectory, Trajectory):
+        raise TypeError(f"{caller} needs a Trajectory; got {type(trajectory).__name__}")
+    if np.ndim(trajectory.com) != 2:
+        raise ValueError(
+            f"{caller} checks one trajectory; this one is batched (com has shape "
+            f"{np.shape(trajectory.com)}). Pick one: jax.tree_util.tree_map(lambda a: a[i], t)"
+        )
+    return {
+        "ts": np.asarray(trajectory.ts, float),
+        "com": np.asarray(trajectory.com, float),
+        "frame": np.asarray(trajectory.frame, float),
+        "contact": np.asarray(trajectory.contact, bool),
+        "finite": bool(np.asarray(trajectory.finite)),
+    }
+
+
+def _positive(name: str, value: float) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} = {value!r}; allowed: a number > 0")
+    return value
+
+
+def _tilt_degrees(frame: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip(frame[:, 2, 2], -1.0, 1.0)))
+
+
+def _forward(t: dict) -> float:
+    heading = t["frame"][0, :2, 0]
+    heading = heading / max(np.linalg.norm(heading), 1e-12)
+    return float(np.dot(t["com"][-1, :2] - t["com"][0, :2], heading))
+
+
+def _result(name: str, finite: bool, figures: dict, criteria: dict) -> CheckResult:
+    criteria = {"the simulation stayed finite": finite, **criteria}
+    return CheckResult(name, all(criteria.values()), figures, criteria)
+
+
+def leap(
+    trajectory: Trajectory,
+    *,
+    body_length: float,
+    period: float,
+    min_lengths: float = 3.0,
+    max_tilt_degrees: float = 45.0,
+    min_airborne_periods: int = 3,
+) -> CheckResult:
+    """The spider's leap (first paper, Figure 7): travels forward by leaps, staying upright.
+
+    Passes when the centre of mass travels forward at least `min_lengths` body lengths over
+    the trajectory, the body's up axis never tilts more than `max_tilt_degrees` from vertical,
+    and in at least `min_airborne_periods` of the controller's periods there is a saved
+    instant with no point touching the floor.
+
+    **Arguments:** the trajectory; `body_length` (m, e.g. `lattice.body_length`); the
+    controller's `period` (s, `t_per`); the thresholds.
+    """
+    t = _single(trajectory, "leap")
+    body_length = _positive("body_length", body_length)
+    period = _positive("period", period)
+    lengths = _forward(t) / body_length
+    tilt = float(_tilt_degrees(t["frame"]).max())
+    airborne = ~np.any(t["contact"], axis=1)
+    airborne[0] = False  # the start, resting on the floor, is not a leap
+    periods = np.floor(t["ts"] / period + 1e-9).astype(int)
+    airborne_periods = len(set(periods[airborne].tolist()))
+    figures = {
+        "forward_body_lengths": lengths,
+        "forward_m": lengths * body_length,
+        "max_tilt_degrees": tilt,
+        "airborne_periods": float(airborne_periods),
+        "periods": float(t["ts"][-1] / period),
+    }
+    far = f"travels forward >= {min_lengths:g} body lengths (got {lengths:.2f})"
+    steady = f"never tilts more than {max_tilt_degrees:g} degrees (max {tilt:.1f})"
+    leaps = f"airborne in >= {min_airborne_periods} periods (got {airborne_periods})"
+    criteria = {
+        far: lengths >= min_lengths,
+        steady: tilt <= max_tilt_degrees,
+        leaps: airborne_periods >= min_airborne_periods,
+    }
+    return _result("leap", t["finite"], figures, criteria)
+
+
+def somersault(
+    trajectory: Trajectory,
+    *,
+    min_turns: float = 1.0,
+    max_final_tilt_degrees: float = 30.0,
+) -> CheckResult:
+    """The poodle's backward somersault (first paper, Figure 8).
+
+    Passes when the body frame turns at least `min_turns` full turns (net) backwards about its
+    left (lateral) axis, the centre of mass ends ahead of where it started, and the body ends
+    touching the floor with its up axis within `max_final_tilt_degrees` of vertical.
+    "Backwards" is nose up and over: negative about the left axis (see the `rotation` term).
+    """
+    t = _single(trajectory, "somersault")
+    turns = -float(rotation(trajectory, axis="left")) / (2 * math.pi)
+    forward = _forward(t)
+    final_tilt = float(_tilt_degrees(t["frame"])[-1])
+    on_floor = bool(np.any(t["contact"][-1]))
+    figures = {
+        "backward_turns": turns,
+        "forward_m": forward,
+        "final_tilt_degrees": final_tilt,
+        "on_floor_at_end": float(on_floor),
+    }
+    turned = f"turns >= {min_turns:g} times backwards about the lateral axis (got {turns:.2f})"
+    upright = f"ends within {max_final_tilt_degrees:g} degrees of upright (got {final_tilt:.1f})"
+    criteria = {
+        turned: turns >= min_turns,
+        f"moves forward (got {forward:.2f} m)": forward > 0,
+        f"ends on the floor (got {on_floor})": on_floor,
+        upright: final_tilt <= max_final_tilt_degrees,
+    }
+    return _result("somersault", t["finite"], figures, criteria)
+
+
+def pirouette(
+    trajectory: Trajectory,
+    *,
+    body_length: float,
+    min_turns: float = 1.0,
+    max_tilt_degrees: float = 30.0,
+    max_displacement_lengths: float = 0.5,
+) -> CheckResult:
+    """The table's pirouette (first paper, Figure 9): spins in place, upright.
+
+    Passes when the net rotation about the vertical is at least `min_turns` full turns (either
+    way), the up axis never tilts more than `max_tilt_degrees`, the centre of mass ends less
+    than `max_displacement_lengths` body lengths (horizontally) from where it started, and the
+    body touches the floor at the end.
+    """
+    t = _single(trajectory, "pirouette")
+    body_length = _positive("body_length", body_length)
+    turns = float(net_yaw(trajectory, signed=True)) / (2 * math.pi)
+    tilt = float(_tilt_degrees(t["frame"]).max())
+    shift = float(np.linalg.norm(t["com"][-1, :2] - t["com"][0, :2])) / body_length
+    on_floor = bool(np.any(t["contact"][-1]))
+    figures = {
+        "turns": turns,
+        "max_tilt_degrees": tilt,
+        "displacement_body_lengths": shift,
+        "on_floor_at_end": float(on_floor),
+    }
+    spun = f"turns >= {min_turns:g} times about the vertical (got {abs(turns):.2f})"
+    steady = f"never tilts more than {max_tilt_degrees:g} degrees (max {tilt:.1f})"
+    still = f"moves less than {max_displacement_lengths:g} body lengths (got {shift:.2f})"
+    criteria = {
+        spun: abs(turns) >= min_turns,
+        steady: tilt <= max_tilt_degrees,
+        still: shift < max_displacement_lengths,
+        f"ends on the floor (got {on_floor})": on_floor,
+    }
+    return _result("pirouette", t["finite"], figures, criteria)
+
+
+CHECKS = {"leap": leap, "somersault": somersault, "pirouette": pirouette}

@@ -1,0 +1,139 @@
+"""The motion checks accept hand-built trajectories that do the motion and reject ones that
+do not."""
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmotion as jm
+
+CUBE = np.asarray(jm.lattices.cube().points)
+
+
+def rot(axis, angle):
+    c, s = math.cos(angle), math.sin(angle)
+    if axis == "y":
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    if axis == "z":
+        return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def trajectory(duration, com, angles=None, axis="y", contact=None):
+    """A rigid cube following `com(t)` and turning by `angles(t)` about a world axis."""
+    ts = np.linspace(0, duration, int(duration / 0.02) + 1)
+    com = np.array([com(t) for t in ts])
+    frames = np.array([rot(axis, angles(t) if angles else 0.0) for t in ts])
+    rel = CUBE - CUBE.mean(0)
+    points = com[:, None] + np.einsum("tij,nj->tni", frames, rel)
+    if contact is None:
+        contact = points[..., 2] < 1e-6
+    else:
+        contact = np.array([contact(t) for t in ts])
+    return jm.Trajectory(
+        ts=jnp.asarray(ts),
+        points=jnp.asarray(points),
+        com=jnp.asarray(com),
+        frame=jnp.asarray(frames),
+        contact=jnp.asarray(contact),
+        finite=jnp.asarray(True),
+    )
+
+
+def hopping(t, period=1.0, airborne=0.3):
+    """All points down except for the first `airborne` of every period (after t = 0)."""
+    return np.full(8, not (0 < (t % period) < airborne))
+
+
+def test_leap_accepts_a_leaping_spider_and_rejects_a_shuffle_or_a_fall():
+    leaper = trajectory(4.5, lambda t: [t, 0, 0.5], contact=hopping)
+    result = jm.checks.leap(leaper, body_length=1.0, period=1.0)
+    assert result.passed, result.summary()
+    assert result.figures["airborne_periods"] == 5  # periods 0..4 each start with a leap
+    assert result.figures["forward_body_lengths"] == pytest.approx(4.5)
+    shuffle = trajectory(4.5, lambda t: [t, 0, 0.5], contact=lambda t: np.ones(8, bool))
+    assert not jm.checks.leap(shuffle, body_length=1.0, period=1.0)
+    short = trajectory(4.5, lambda t: [0.5 * t, 0, 0.5], contact=hopping)
+    assert not jm.checks.leap(short, body_length=1.0, period=1.0)
+    assert jm.checks.leap(short, body_length=0.5, period=1.0)  # 2.25 m is 4.5 of its lengths
+    fallen = trajectory(4.5, lambda t: [t, 0, 0.5], angles=lambda t: 0.3 * t, contact=hopping)
+    result = jm.checks.leap(fallen, body_length=1.0, period=1.0)
+    assert not result and result.figures["max_tilt_degrees"] > 45
+
+
+def test_somersault_accepts_a_backward_flip_and_rejects_a_forward_one_or_a_bad_landing():
+    # 1.05 turns backwards: lands 18 degrees past upright.
+    back = trajectory(
+        3.0, lambda t: [t, 0, 0.5 + np.sin(np.pi * t / 3)], angles=lambda t: -2.1 * np.pi * t / 3
+    )
+    result = jm.checks.somersault(back)
+    assert result.passed, result.summary()
+    assert result.figures["backward_turns"] == pytest.approx(1.05, abs=1e-3)
+    assert result.figures["final_tilt_degrees"] == pytest.approx(18.0, abs=0.1)
+    front = trajectory(
+        3.0, lambda t: [t, 0, 0.5 + np.sin(np.pi * t / 3)], angles=lambda t: 2 * np.pi * t / 3
+    )
+    assert not jm.checks.somersault(front)
+    crooked = trajectory(
+        3.0,
+        lambda t: [t, 0, 0.5 + np.sin(np.pi * t / 3)],
+        angles=lambda t: -(2 * np.pi + 0.8) * t / 3,
+    )
+    result = jm.checks.somersault(crooked)
+    assert not result and result.figures["final_tilt_degrees"] > 30
+    backwards_travel = trajectory(
+        3.0, lambda t: [-t, 0, 0.5 + np.sin(np.pi * t / 3)], angles=lambda t: -2 * np.pi * t / 3
+    )
+    assert not jm.checks.somersault(backwards_travel)
+
+
+def test_pirouette_accepts_a_spin_in_place_and_rejects_drift_tilt_or_too_little_turn():
+    spin = trajectory(
+        3.0, lambda t: [0.1 * t, 0, 0.5], angles=lambda t: 2.2 * np.pi * t / 3, axis="z"
+    )
+    result = jm.checks.pirouette(spin, body_length=1.0)
+    assert result.passed, result.summary()
+    assert result.figures["turns"] == pytest.approx(1.1, abs=1e-3)
+    drift = trajectory(
+        3.0, lambda t: [0.3 * t, 0, 0.5], angles=lambda t: 2.2 * np.pi * t / 3, axis="z"
+    )
+    assert not jm.checks.pirouette(drift, body_length=1.0)
+    half = trajectory(3.0, lambda t: [0, 0, 0.5], angles=lambda t: np.pi * t / 3, axis="z")
+    assert not jm.checks.pirouette(half, body_length=1.0)
+    airborne_end = trajectory(
+        3.0, lambda t: [0, 0, 0.5 + t], angles=lambda t: 2.2 * np.pi * t / 3, axis="z"
+    )
+    assert not jm.checks.pirouette(airborne_end, body_length=1.0)
+
+
+def test_a_run_that_blew_up_fails_and_bad_arguments_raise():
+    leaper = trajectory(4.5, lambda t: [t, 0, 0.5], contact=hopping)
+    broken = jm.Trajectory(
+        ts=leaper.ts,
+        points=leaper.points,
+        com=leaper.com,
+        frame=leaper.frame,
+        contact=leaper.contact,
+        finite=jnp.asarray(False),
+    )
+    result = jm.checks.leap(broken, body_length=1.0, period=1.0)
+    assert not result and "FAIL  the simulation stayed finite" in result.summary()
+    with pytest.raises(ValueError, match=r"body_length = 0.0; allowed: a number > 0"):
+        jm.checks.leap(leaper, body_length=0.0, period=1.0)
+    batched = jm.Trajectory(
+        *(
+            jnp.stack([a, a])
+            for a in (
+                leaper.ts,
+                leaper.points,
+                leaper.com,
+                leaper.frame,
+                leaper.contact,
+                leaper.finite,
+            )
+        )
+    )
+    with pytest.raises(ValueError, match="batched"):
+        jm.checks.somersault(batched)
