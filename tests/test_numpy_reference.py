@@ -30,7 +30,13 @@ def test_agrees_with_the_numpy_model(builder, world, x64):
         WORLDS[world],
         jm.RegimesSpace(4, 0.3),
         jm.Objective({"forward": 1.0}),
-        duration=0.6,
+        # Long enough for contact, impacts and regime switches (the lattice must move, see
+        # below), short enough to end before a stick phase amplifies rounding: in deep
+        # contact the regularised friction acts as a drag mu * Fn / friction_velocity that is
+        # stiffer than the explicit 1 ms step can follow, and there the two implementations'
+        # last-bit differences grew from 1e-15 to 1e-8 within 60 ms (chair, anisotropic,
+        # t = 0.54 s).
+        duration=0.5,
     )
     params = task.sample(6, key=jr.key(3))
     ours = np.asarray(

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._body.base import AbstractBody
@@ -90,6 +90,7 @@ class Task(eqx.Module):
         16 are padded to 16, which is why they cost about as much as 16).
         """
         batch = _batch_size(params)
+        params = _replicated(params)
         chunk = _CHUNK * len(jax.devices())
         if batch <= chunk:
             return _evaluate(self, params)
@@ -107,7 +108,8 @@ class Task(eqx.Module):
 
     def trajectories(self, params: AbstractController) -> Trajectory:
         """The trajectories behind `evaluate`, with a leading batch axis (fast path)."""
-        return _trajectories(self, params)
+        _batch_size(params)
+        return _trajectories(self, _replicated(params))
 
     def simulate(
         self,
@@ -137,7 +139,7 @@ class Task(eqx.Module):
                 dt=dt,
                 save_dt=save_dt,
             )
-            batch = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], params)
+            batch = _replicated(jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], params))
             return jax.tree_util.tree_map(lambda a: a[0], _trajectories(task, batch))
         return _simulate_one(self, params, solver, dt, save_dt)
 
@@ -191,6 +193,19 @@ def _local_fitness(task: Task, params):
 _MIN_SHARE = 16
 
 
+def _mesh() -> Mesh:
+    return Mesh(np.array(jax.devices()), ("batch",))
+
+
+def _replicated(params):
+    """`params` placed whole on every device. The compiled evaluation is keyed on its
+    inputs' placement as well as their shapes: controllers arrive uncommitted from
+    `task.sample`, or spread over the devices by an earlier sharded call (a search's
+    children), and without one canonical placement each kind would compile again."""
+    sharding = NamedSharding(_mesh(), PartitionSpec())
+    return jax.tree_util.tree_map(lambda a: jax.device_put(jnp.asarray(a), sharding), params)
+
+
 def _padded(params, size: int):
     batch = _batch_size(params)
     if size <= batch:
@@ -211,7 +226,7 @@ def _sharded(fn, task: Task, params):
     if len(devices) == 1 or batch < _MIN_SHARE * len(devices):
         return jax.tree_util.tree_map(lambda a: a[:batch], fn(task, params))
     params = _padded(params, batch + (-batch) % len(devices))
-    mesh = Mesh(np.array(devices), ("batch",))
+    mesh = _mesh()
     dynamic, static = eqx.partition(task, eqx.is_array)
     local = lambda d, p: fn(eqx.combine(d, static), p)
     out = jax.shard_map(

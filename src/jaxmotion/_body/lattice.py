@@ -343,7 +343,7 @@ def _validated(points, springs, masses, stiffness, damping, rest_lengths, frame)
     if rest_lengths is not None:
         rl = per("rest_lengths", "rest length", rest_lengths, ns, "spring", positive=True)
     else:
-        rl = None
+        rl = lengths
     if frame is not None:
         f = np.asarray(frame, dtype=float)
         if f.shape != (3, 3) or not np.allclose(f.T @ f, np.eye(3), atol=1e-6):
@@ -357,5 +357,16 @@ def _validated(points, springs, masses, stiffness, damping, rest_lengths, frame)
                 f"{f.tolist()}"
             )
     else:
-        f = None
-    return pts, spr, m, k, d, rl, f
+        f = np.eye(3)
+    # Everything is computed here in NumPy and converted once: eager jax.numpy operations
+    # would each compile a tiny kernel, about a second in all for building one lattice.
+    real = np.dtype(jnp.result_type(float))
+    return (
+        pts.astype(real),
+        spr.astype(np.int32),
+        m.astype(real),
+        k.astype(real),
+        d.astype(real),
+        rl.astype(real),
+        f.astype(real),
+    )

@@ -147,7 +147,19 @@ PERTURBATIONS: tuple[tuple[float, str], ...] = (
 """The first paper's Table 2: (probability, perturbation), in the order of the table."""
 
 ADJUST = 0.1
-""""Adjust" multiplies a value by `1 + u`, `u` uniform in (-ADJUST, ADJUST): under 10%."""
+""""Adjust" multiplies a value by `1 + u`, `u` uniform in [-ADJUST, ADJUST): under 10%."""
+
+NUM_REFLEXES = 12
+
+# Upper ends of the Table 2 probabilities on [0, 1), in float64 so that they sum to exactly 1.
+_CUMULATIVE = np.cumsum([prob for prob, _ in PERTURBATIONS])
+_CUMULATIVE[-1] = 1.0
+
+
+def _choose(u: Float[Array, ""]) -> Int[Array, ""]:
+    """The Table 2 perturbation for a uniform draw `u` in [0, 1) (inverse-CDF sampling)."""
+    edges = jnp.asarray(_CUMULATIVE[:-1], dtype=u.dtype)
+    return jnp.sum(u >= edges).astype(jnp.int32)
 
 
 class RegimesSpace(AbstractControllerSpace[Regimes]):
@@ -192,45 +204,56 @@ class RegimesSpace(AbstractControllerSpace[Regimes]):
     def family(self) -> str:
         return "regimes"
 
-    def _times(self, key, shape=()):
-        return jr.uniform(key, shape, minval=0.0, maxval=self.t_per)
+    # Every random quantity is a transform of one uniform draw: one threefry call per
+    # controller rather than one per quantity, which keeps `sample` and `perturb` cheap to
+    # compile (each threefry call costs XLA about half a second on CPU).
+    def _times(self, u):
+        return u * self.t_per
 
     @staticmethod
-    def _reflexes(key, shape=()):
-        return jr.randint(key, shape, 0, 12, dtype=jnp.int32)
+    def _reflexes(u):
+        return jnp.minimum(jnp.floor(u * NUM_REFLEXES), NUM_REFLEXES - 1).astype(jnp.int32)
 
     @staticmethod
-    def _coefficients(key, shape=()):
-        return jnp.sin(jnp.pi * (jr.uniform(key, shape) - 0.5))
+    def _coefficients(u):
+        # The arcsine law on [-1, 1]: density 1 / (pi sqrt(1 - a^2)), favouring the extremes.
+        return jnp.sin(jnp.pi * (u - 0.5))
 
     def sample(self, *, key: PRNGKeyArray) -> Regimes:
-        time_key, reflex_key, coefficient_key = jr.split(key, 3)
-        c = self.num_regimes
+        u = jr.uniform(key, (3, self.num_regimes))
         return Regimes(
-            times=self._times(time_key, (c,)),
-            reflexes=self._reflexes(reflex_key, (c,)),
-            coefficients=self._coefficients(coefficient_key, (c,)),
+            times=self._times(u[0]),
+            reflexes=self._reflexes(u[1]),
+            coefficients=self._coefficients(u[2]),
             t_per=jnp.asarray(self.t_per, dtype=float),
             amplitudes=self.amplitudes,
         )
 
     def choose_perturbation(self, *, key: PRNGKeyArray) -> Int[Array, ""]:
         """Index into `PERTURBATIONS`, drawn with the probabilities of Table 2."""
-        p = jnp.asarray([prob for prob, _ in PERTURBATIONS])
-        return jr.choice(key, len(PERTURBATIONS), p=p)
+        return _choose(jr.uniform(key))
 
     def apply_perturbation(
         self, op: Int[Array, ""], controller: Regimes, *, key: PRNGKeyArray
     ) -> Regimes:
         """Apply perturbation number `op` (an index into `PERTURBATIONS`) to `controller`."""
-        regime_key, factor_key, reflex_key, coefficient_key, time_key = jr.split(key, 5)
+        return self._apply(op, controller, jr.uniform(key, (1 + 4 * self.num_regimes,)))
+
+    def _apply(self, op, controller: Regimes, u) -> Regimes:
         c = self.num_regimes
-        one = jnp.arange(c) == jr.randint(regime_key, (), 0, c)
+        u_regime, u_factor, u_reflex, u_coefficient, u_time = (
+            u[0],
+            u[1 : 1 + c],
+            u[1 + c : 1 + 2 * c],
+            u[1 + 2 * c : 1 + 3 * c],
+            u[1 + 3 * c : 1 + 4 * c],
+        )
+        one = jnp.arange(c) == jnp.minimum(jnp.floor(u_regime * c), c - 1)
         every = jnp.ones(c, dtype=bool)
-        factor = 1.0 + jr.uniform(factor_key, (c,), minval=-ADJUST, maxval=ADJUST)
-        new_reflexes = self._reflexes(reflex_key, (c,))
-        new_coefficients = self._coefficients(coefficient_key, (c,))
-        new_times = self._times(time_key, (c,))
+        factor = 1.0 + ADJUST * (2.0 * u_factor - 1.0)
+        new_reflexes = self._reflexes(u_reflex)
+        new_coefficients = self._coefficients(u_coefficient)
+        new_times = self._times(u_time)
         adjusted_coefficients = jnp.clip(controller.coefficients * factor, -1.0, 1.0)
         adjusted_times = jnp.clip(controller.times * factor, 0.0, self.t_per)
 
@@ -277,6 +300,5 @@ class RegimesSpace(AbstractControllerSpace[Regimes]):
         )
 
     def perturb(self, controller: Regimes, *, key: PRNGKeyArray) -> Regimes:
-        choice_key, apply_key = jr.split(key)
-        op = self.choose_perturbation(key=choice_key)
-        return self.apply_perturbation(op, controller, key=apply_key)
+        u = jr.uniform(key, (2 + 4 * self.num_regimes,))
+        return self._apply(_choose(u[0]), controller, u[1:])
