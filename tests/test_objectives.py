@@ -119,6 +119,14 @@ def test_orientation_losses():
     assert value("upright", tilt30) == 0
     assert value("upright", tilt30, max_degrees=20) == 1
     assert value("tilt", tilt30) == pytest.approx(np.deg2rad(30), rel=1e-4)
+    assert value("final_tilt", tilt30) == pytest.approx(np.deg2rad(30), rel=1e-4)
+    # A full backward somersault ends upright: large tilt on the way, none at the end.
+    back = make(still, frames=spin(rot_y, -2 * np.pi, 21))
+    assert value("tilt", back) == pytest.approx(np.pi, rel=1e-4)
+    assert value("final_tilt", back) == pytest.approx(0.0, abs=1e-3)
+    assert value("fallen", back) == 0
+    assert value("fallen", tilt30) == 0
+    assert value("fallen", tilt30, max_degrees=20) == 1
     flipped = make(still, frames=spin(rot_x, np.deg2rad(120), 21))
     assert value("upright", flipped) == 1
     assert value("left_right", flipped) == 1

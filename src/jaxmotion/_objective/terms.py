@@ -153,6 +153,21 @@ def tilt(trajectory: Trajectory) -> Float[Array, ""]:
     return jnp.arccos(jnp.clip(jnp.min(trajectory.frame[:, 2, 2]), -1.0, 1.0))
 
 
+@register_term("final_tilt")
+def final_tilt(trajectory: Trajectory) -> Float[Array, ""]:
+    """Tilt of the body's up axis from vertical at the final time (rad, 0 to pi): penalise it
+    to make a motion end the right way up, whatever it did in between (a somersault)."""
+    return jnp.arccos(jnp.clip(trajectory.frame[-1, 2, 2], -1.0, 1.0))
+
+
+@register_term("fallen")
+def fallen(trajectory: Trajectory, max_degrees: float = 45.0) -> Float[Array, ""]:
+    """1 if at the final time the body's up axis tilts more than `max_degrees` from vertical,
+    else 0: the motion ended fallen over (give it a negative weight). Unlike `upright`, what
+    happens on the way does not count."""
+    return (trajectory.frame[-1, 2, 2] < jnp.cos(jnp.deg2rad(max_degrees))).astype(float)
+
+
 @register_term("left_right")
 def left_right(trajectory: Trajectory, max_degrees: float = 90.0) -> Float[Array, ""]:
     """1 if the body's left axis ever turns more than `max_degrees` away from its initial

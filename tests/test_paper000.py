@@ -1,0 +1,85 @@
+"""The first paper's three motions as configs: each runs from the command line and writes a
+complete results folder whose summary carries its check's verdict (small budgets here); with
+the paper's full budget the default seed passes its check (`-m slow`, not in CI)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# Config -> the check its summary must report, and the figures that check measures.
+MOTIONS = {
+    "spider_leap": (
+        "leap",
+        {"forward_body_lengths", "max_tilt_degrees", "airborne_periods"},
+    ),
+    "poodle_somersault": (
+        "somersault",
+        {"backward_turns", "forward_m", "final_tilt_degrees", "on_floor_at_end"},
+    ),
+    "table_pirouette": (
+        "pirouette",
+        {"turns", "max_tilt_degrees", "displacement_body_lengths", "on_floor_at_end"},
+    ),
+}
+
+FILES = {
+    "config.toml",
+    "best_controller.json",
+    "history.csv",
+    "learning_plot.png",
+    "motion.gif",
+    "summary.json",
+}
+
+
+def run(config: str, out: Path, *extra: str) -> Path:
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "jaxmotion",
+            "run",
+            str(ROOT / "configs" / f"{config}.toml"),
+            "--out",
+            str(out),
+            "--quiet",
+            *extra,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return Path(done.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("config", list(MOTIONS))
+def test_each_motion_config_runs_and_writes_everything(config, tmp_path):
+    folder = run(config, tmp_path, "--evaluations", "60", "--batch", "30")
+    assert {p.name for p in folder.iterdir()} == FILES
+    assert all((folder / name).stat().st_size > 0 for name in FILES)
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["evaluations"] == 100 + 60  # the search set of 100, then the budget
+    history = (folder / "history.csv").read_text().strip().splitlines()
+    assert len(history) == 1 + summary["evaluations"]
+    name, figures = MOTIONS[config]
+    check = summary["check"]
+    assert check["name"] == name
+    assert figures <= set(check["figures"])
+    assert isinstance(check["passed"], bool)
+    assert check["passed"] == all(check["criteria"].values())
+    assert summary["replay_fitness"] == summary["best_fitness"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config", list(MOTIONS))
+def test_with_the_papers_budget_the_default_seed_does_the_motion(config, tmp_path):
+    folder = run(config, tmp_path, "--no-animation")
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["evaluations"] == 100 + 25_000
+    assert summary["check"]["passed"], summary["check"]
