@@ -17,7 +17,7 @@ the peers' setting, and the accuracy-matched step), one evaluation is one 5 s si
   observation or objective), the reference the project measured before this code existed.
 
 Also measured: the compile time of `evaluate`, its peak memory at B = 10,000 (a fresh
-process, `ru_maxrss`), and diffrax's overhead against a `lax.scan` of the same step. Results
+process, its `VmHWM`), and diffrax's overhead against a `lax.scan` of the same step. Results
 go to `benchmarks/evaluate.json` for comparison across commits.
 """
 
@@ -84,7 +84,12 @@ task = make_task(sys.argv[1], float(sys.argv[2]))
 params = task.sample(10_000, key=jr.key(0))
 task.evaluate(params).block_until_ready()
 task.evaluate(params).block_until_ready()
-print(json.dumps({"peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+try:  # this process's own high-water mark (ru_maxrss would include the parent's, from fork)
+    status = open("/proc/self/status").read()
+    peak_kb = int(status.split("VmHWM:")[1].split()[0])
+except (OSError, IndexError):
+    peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({"peak_mb": peak_kb / 1024}))
 """
 
 
