@@ -27,6 +27,12 @@ from ._search.hill_climb import ParallelHillClimb as ParallelHillClimb
 from ._search.hill_climb import SearchResult as SearchResult
 from ._search.hill_climb import parallel_hill_climb as parallel_hill_climb
 from ._search.history import History as History
+from ._search.refine import RefineHistory as RefineHistory
+from ._search.refine import RefineResult as RefineResult
+from ._search.refine import Smoothing as Smoothing
+from ._search.refine import fitness_and_gradient as fitness_and_gradient
+from ._search.refine import gradient_cost as gradient_cost
+from ._search.refine import refine as refine
 from ._sim.simulate import simulate as simulate
 from ._sim.trajectory import Observation as Observation
 from ._sim.trajectory import Trajectory as Trajectory
@@ -59,18 +65,24 @@ __all__ = [
     "Objective",
     "Observation",
     "ParallelHillClimb",
+    "RefineHistory",
+    "RefineResult",
     "Regimes",
     "RegimesSpace",
     "SearchResult",
+    "Smoothing",
     "Task",
     "Trajectory",
     "World",
     "checks",
     "deform",
+    "fitness_and_gradient",
     "floor_force",
+    "gradient_cost",
     "lattices",
     "objective_terms",
     "parallel_hill_climb",
+    "refine",
     "register_term",
     "simulate",
     "use_cpu_cores",

@@ -4,6 +4,7 @@ import abc
 from typing import Any, ClassVar, Generic, TypeVar
 
 import equinox as eqx
+import jax
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._body.base import AbstractBody
@@ -32,6 +33,13 @@ class AbstractController(eqx.Module):
     def actuation(self, t: Float[Array, ""], plan: Any) -> Any:
         """The actuation at time `t`."""
 
+    def smoothed(self, width: float) -> "AbstractController":
+        """The same controller with its discrete switches blended over `width` seconds, for
+        gradients (`jaxmotion.refine`); `width=0` must return the controller unchanged.
+        Controllers without switches return themselves."""
+        del width
+        return self
+
 
 C = TypeVar("C", bound=AbstractController)
 
@@ -53,3 +61,13 @@ class AbstractControllerSpace(eqx.Module, Generic[C]):
     @abc.abstractmethod
     def family(self) -> str:
         """The family's name as configs and saved controllers spell it (e.g. `"regimes"`)."""
+
+    def trainable(self, controller: C) -> Any:
+        """Which of the controller's leaves gradient refinement may change: a pytree of bools
+        shaped like the controller (an `equinox` filter spec). Default: none."""
+        return jax.tree_util.tree_map(lambda _: False, controller)
+
+    def project(self, controller: C) -> C:
+        """The nearest controller within the family's bounds (applied after every gradient
+        step). Default: unchanged."""
+        return controller

@@ -45,7 +45,10 @@ class Regimes(AbstractController):
 
     **Fields:** `times` `(C,)` in `[0, t_per]`; `reflexes` `(C,)` integers in `0..11`;
     `coefficients` `(C,)` in `[-1, 1]`; `t_per` the period (s); `amplitudes` the
-    full-strength size of the four kinds of deformation (scale, shear, splay, twist).
+    full-strength size of the four kinds of deformation (scale, shear, splay, twist);
+    `blend` (s, static) 0 for the paper's hard switch between regimes, or the width over
+    which neighbouring regimes' rest lengths cross-fade (a smoothed problem for gradients,
+    see `smoothed` and `jaxmotion.refine`).
     """
 
     times: Float[Array, " C"]
@@ -53,6 +56,7 @@ class Regimes(AbstractController):
     coefficients: Float[Array, " C"]
     t_per: Float[Array, ""]
     amplitudes: tuple[float, float, float, float] = eqx.field(static=True)
+    blend: float = eqx.field(static=True)
 
     supports_batch_last: ClassVar[bool] = True
 
@@ -63,7 +67,10 @@ class Regimes(AbstractController):
         coefficients: Float[ArrayLike, " C"],
         t_per: float | Float[ArrayLike, ""],
         amplitudes: tuple[float, float, float, float] = DEFAULT_AMPLITUDES,
+        blend: float = 0.0,
     ):
+        if isinstance(blend, bool) or not isinstance(blend, int | float) or not blend >= 0:
+            raise ValueError(f"Regimes.blend = {blend!r}; allowed: a number >= 0 (seconds)")
         if not any(isinstance(x, jax.core.Tracer) for x in (times, reflexes, coefficients, t_per)):
             _check_regimes(times, reflexes, coefficients, t_per)
         self.times = jnp.asarray(times, dtype=float)
@@ -71,6 +78,7 @@ class Regimes(AbstractController):
         self.coefficients = jnp.asarray(coefficients, dtype=float)
         self.t_per = jnp.asarray(t_per, dtype=float)
         self.amplitudes = _check_amplitudes(amplitudes, "Regimes")
+        self.blend = float(blend)
 
     @property
     def num_regimes(self) -> int:
@@ -95,8 +103,17 @@ class Regimes(AbstractController):
         phase = jnp.mod(t, self.t_per)
         return jnp.argmin(jnp.abs(phase - self.times))
 
+    def smoothed(self, width: float) -> "Regimes":
+        """This controller with its regime switches blended over about `width` seconds (see
+        `blend`); `width=0` is the paper's hard switch."""
+        return Regimes(
+            self.times, self.reflexes, self.coefficients, self.t_per, self.amplitudes, width
+        )
+
     def actuation(self, t, plan: Float[Array, "C n n"]) -> Float[Array, "n n"]:
         phase = jnp.mod(t, self.t_per)
+        if self.blend > 0:
+            return self._blended(phase, plan)
         # A chain of selects rather than an index: under vmap an index per controller would
         # become a gather, which is slow on CPU; selects stay elementwise.
         best = jnp.abs(phase - self.times[0])
@@ -107,6 +124,21 @@ class Regimes(AbstractController):
             best = jnp.where(nearer, dist, best)
             table = jnp.where(nearer, plan[c], table)
         return table
+
+    def _blended(self, phase, plan):
+        # Regime c weighs exp(-(d_c - d_min) / blend), d_c = |phase - times[c]|: the nearest
+        # regime dominates, and across a switch (where two distances cross) the tables
+        # cross-fade over about `blend` seconds. As blend -> 0 this is the hard switch.
+        dists = [jnp.abs(phase - self.times[c]) for c in range(self.num_regimes)]
+        nearest = dists[0]
+        for d in dists[1:]:
+            nearest = jnp.minimum(nearest, d)
+        weights = [jnp.exp(-(d - nearest) / self.blend) for d in dists]
+        total = sum(weights[1:], weights[0])
+        table = sum(
+            (w * p for w, p in zip(weights[1:], plan[1:], strict=True)), weights[0] * plan[0]
+        )
+        return table / total
 
 
 def _check_regimes(times, reflexes, coefficients, t_per) -> None:
@@ -297,6 +329,24 @@ class RegimesSpace(AbstractControllerSpace[Regimes]):
             coefficients=a,
             t_per=controller.t_per,
             amplitudes=controller.amplitudes,
+            blend=controller.blend,
+        )
+
+    def trainable(self, controller: Regimes):
+        """Regime times and reflex coefficients are refined by gradients; the reflex numbers
+        (discrete) and the period (fixed by the family) are not."""
+        spec = jax.tree_util.tree_map(lambda _: False, controller)
+        return eqx.tree_at(lambda c: (c.times, c.coefficients), spec, (True, True))
+
+    def project(self, controller: Regimes) -> Regimes:
+        """Clip times into `[0, t_per]` and coefficients into `[-1, 1]`."""
+        return eqx.tree_at(
+            lambda c: (c.times, c.coefficients),
+            controller,
+            (
+                jnp.clip(controller.times, 0.0, self.t_per),
+                jnp.clip(controller.coefficients, -1.0, 1.0),
+            ),
         )
 
     def perturb(self, controller: Regimes, *, key: PRNGKeyArray) -> Regimes:

@@ -146,18 +146,26 @@ def upright(trajectory: Trajectory, max_degrees: float = 45.0) -> Float[Array, "
     return jnp.any(cos_tilt < jnp.cos(jnp.deg2rad(max_degrees))).astype(float)
 
 
+def _tilt_from_cos(cos):
+    """arccos of the up axis's vertical component, clipped to [-1, 1]; exactly upright
+    (cos >= 1) gives 0 with gradient 0 rather than arccos's infinite slope (NaN)."""
+    upright = cos >= 1.0
+    safe = jnp.where(upright, 0.0, jnp.clip(cos, -1.0, 1.0))
+    return jnp.where(upright, 0.0, jnp.arccos(safe))
+
+
 @register_term("tilt")
 def tilt(trajectory: Trajectory) -> Float[Array, ""]:
     """Largest tilt of the body's up axis from vertical over the motion (rad): a continuous
     companion of `upright`."""
-    return jnp.arccos(jnp.clip(jnp.min(trajectory.frame[:, 2, 2]), -1.0, 1.0))
+    return _tilt_from_cos(jnp.min(trajectory.frame[:, 2, 2]))
 
 
 @register_term("final_tilt")
 def final_tilt(trajectory: Trajectory) -> Float[Array, ""]:
     """Tilt of the body's up axis from vertical at the final time (rad, 0 to pi): penalise it
     to make a motion end the right way up, whatever it did in between (a somersault)."""
-    return jnp.arccos(jnp.clip(trajectory.frame[-1, 2, 2], -1.0, 1.0))
+    return _tilt_from_cos(trajectory.frame[-1, 2, 2])
 
 
 @register_term("fallen")

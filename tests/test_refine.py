@@ -1,0 +1,130 @@
+"""Gradient refinement: gradients through the simulation agree with finite differences,
+smoothing of width zero is the problem as posed, refinement improves, and blown-up runs are
+skipped and counted."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+import optax
+import pytest
+
+import jaxmotion as jm
+
+# Central differences in float64 with this step agree with the gradient to rounding and
+# O(step^2); over 0.3 s of contact-rich motion, this relative tolerance leaves room for the
+# growth of rounding differences.
+FD_STEP = 1e-6
+FD_RTOL = 1e-4
+# Length of the ascent step (in parameter space) that must improve the smoothed objective.
+ASCENT_STEP = 1e-5
+SMOOTH = jm.Smoothing(regime_width=0.05, friction_velocity=0.1)
+
+# The terms the configs use. Continuous ones have gradients; piecewise-constant ones
+# (contacts, hops, upright, fallen) must have zero gradient, as their differences do.
+TERMS = {
+    "forward": {"forward": 1.0},
+    "max_height": {"max_height": 1.0},
+    "distance": {"distance": 1.0},
+    "backflip": {"backflip": {"term": "rotation", "axis": "left", "weight": 1.0}},
+    "roll": {"roll": {"term": "rotation", "axis": "forward", "absolute": True, "weight": 1.0}},
+    "net_yaw": {"net_yaw": 1.0},
+    "final_tilt": {"final_tilt": 1.0},
+    "contact_time": {"contact_time": 1.0},
+    "upright": {"upright": 1.0},
+}
+
+
+def task_for(weights, duration=0.3):
+    return jm.Task(
+        jm.lattices.cube(),
+        jm.World(gravity=2.5),
+        jm.RegimesSpace(4, 0.2),
+        jm.Objective(weights),
+        duration=duration,
+    )
+
+
+@pytest.mark.parametrize("term", list(TERMS))
+def test_gradients_agree_with_central_differences(term, x64):
+    task = task_for(TERMS[term])
+    params = task.sample(3, key=jr.key(4))
+    _, grad = jm.fitness_and_gradient(task, params, smoothing=SMOOTH)
+
+    def fitness(p):
+        return np.asarray(jm.fitness_and_gradient(task, p, smoothing=SMOOTH)[0])
+
+    for field in ("times", "coefficients"):
+        g = np.asarray(getattr(grad, field))
+        base = np.asarray(getattr(params, field))
+        for c in range(base.shape[1]):
+            step = np.zeros_like(base)
+            step[:, c] = FD_STEP
+            up = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base + step))
+            down = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base - step))
+            fd = (up - down) / (2 * FD_STEP)
+            scale = max(1.0, float(np.max(np.abs(g))))
+            np.testing.assert_allclose(g[:, c], fd, rtol=FD_RTOL, atol=FD_RTOL * scale)
+    assert grad.reflexes is None and grad.t_per is None  # discrete and fixed: not trained
+
+
+def test_width_zero_is_the_problem_as_posed():
+    task = task_for({"forward": 1.0, "upright": -10.0}, duration=1.0)
+    params = task.sample(20, key=jr.key(1))
+    fitness, _ = jm.fitness_and_gradient(task, params, smoothing=jm.Smoothing())
+    np.testing.assert_array_equal(np.asarray(fitness), np.asarray(task.evaluate(params)))
+    smoothed, _ = jm.fitness_and_gradient(task, params, smoothing=SMOOTH)
+    assert np.any(np.asarray(smoothed) != np.asarray(fitness))  # smoothing does something
+
+
+def test_refine_improves_the_smoothed_objective_from_a_fixed_start(x64):
+    task = jm.Task(
+        jm.lattices.cube(),
+        jm.World(),
+        jm.RegimesSpace(4, 1.0),
+        jm.Objective({"forward": 1.0}),
+        duration=1.0,
+    )
+    start = task.sample(16, key=jr.key(0))
+    smoothing = jm.Smoothing(regime_width=0.05, friction_velocity=0.1)
+    before, grad = jm.fitness_and_gradient(task, start, smoothing=smoothing)
+    # A short projected step along the gradient raises the smoothed objective of every
+    # controller with a clear gradient (some lie still on the floor and have none). Short:
+    # contact makes the objective rough, and over 1 s steps of 1e-4 already overshoot it.
+    norm = np.sqrt(
+        np.sum(np.asarray(grad.times) ** 2, axis=1)
+        + np.sum(np.asarray(grad.coefficients) ** 2, axis=1)
+    )
+    unit = ASCENT_STEP / np.maximum(norm, 1e-12)[:, None]
+    moved = eqx.tree_at(
+        lambda p: (p.times, p.coefficients),
+        start,
+        (start.times + unit * grad.times, start.coefficients + unit * grad.coefficients),
+    )
+    after, _ = jm.fitness_and_gradient(
+        task, jax.vmap(task.space.project)(moved), smoothing=smoothing
+    )
+    has_gradient = norm > 0.1
+    assert has_gradient.sum() >= 4
+    assert np.all(np.asarray(after)[has_gradient] > np.asarray(before)[has_gradient])
+    # refine with Adam raises the best true fitness of the batch, and returns each
+    # controller's best version with the fitness its history recorded.
+    best, result = jm.refine(task, start, optax.adam(0.02), 8, smoothing=smoothing)
+    history = result.history.fitness.reshape(9, 16)
+    assert len(result.history) == 9 * 16
+    assert result.fitness.max() > history[0].max()
+    np.testing.assert_array_equal(result.fitness, history.max(axis=0))
+    np.testing.assert_array_equal(np.asarray(task.evaluate(best)), result.fitness)
+
+
+def test_nonfinite_gradients_are_skipped_and_counted():
+    task = task_for({"forward": 1.0}, duration=0.5)
+    params = task.sample(4, key=jr.key(2))
+    broken = eqx.tree_at(lambda p: p.coefficients, params, params.coefficients.at[0].set(jnp.nan))
+    best, result = jm.refine(task, broken, optax.adam(0.05), 3, smoothing=SMOOTH)
+    assert result.history.nonfinite_gradients == 3  # controller 0, at each of the 3 steps
+    assert np.all(np.isneginf(result.history.fitness.reshape(4, 4)[:, 0]))
+    assert np.all(np.isfinite(np.asarray(best.coefficients[1:])))
+    assert np.all(np.isnan(np.asarray(best.coefficients[0])))  # untouched, never updated
+    assert np.all(np.isfinite(result.fitness[1:]))
