@@ -128,3 +128,56 @@ def test_nonfinite_gradients_are_skipped_and_counted():
     assert np.all(np.isfinite(np.asarray(best.coefficients[1:])))
     assert np.all(np.isnan(np.asarray(best.coefficients[0])))  # untouched, never updated
     assert np.all(np.isfinite(result.fitness[1:]))
+
+
+def test_compare_writes_a_table_and_a_plot_on_equal_budgets(tmp_path):
+    import csv
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "jaxmotion",
+            "compare",
+            str(root / "configs" / "default.toml"),
+            "--evaluations",
+            "200",
+            "--batch",
+            "50",
+            "--seeds",
+            "0,1",
+            "--top-k",
+            "2",
+            "--gradient-cost",
+            "9",  # so that the 100 simulations left after the search buy exactly 5 steps
+            "--out",
+            str(tmp_path),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    folder = Path(done.stdout.strip().splitlines()[-1])
+    assert {p.name for p in folder.iterdir()} == {
+        "compare.csv",
+        "compare.md",
+        "compare.png",
+        "summary.json",
+    }
+    rows = list(csv.DictReader((folder / "compare.csv").open()))
+    assert len(rows) == 4
+    for seed in ("0", "1"):
+        alone, refined = (r for r in rows if r["seed"] == seed)
+        assert alone["method"] == "search" and refined["method"] == "search+refine"
+        assert int(refined["gradient_steps"]) == 5  # 100 / (2 controllers x (9 + 1))
+        assert int(refined["simulations"]) == int(alone["simulations"]) == 100 + 200
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["gradient_cost_simulations"] == 9
+    assert "| stochastic search |" in (folder / "compare.md").read_text()

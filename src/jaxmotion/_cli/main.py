@@ -13,6 +13,8 @@ jaxmotion: automatic motion synthesis for animated characters.
   python -m jaxmotion run CONFIG.toml      run a configured experiment (see configs/)
   python -m jaxmotion check CONFIG.toml    check a config without running it
   python -m jaxmotion replay RESULTS_DIR   re-simulate a run's best controller and report it
+  python -m jaxmotion compare CONFIG.toml  stochastic search vs search + gradient refinement
+                                           on equal budgets, over several seeds
 
 A run writes a results folder: config.toml (resolved), best_controller.json, history.csv (one
 row per evaluation), learning_plot.png, motion.gif and summary.json. Fitness is maximised.
@@ -55,6 +57,29 @@ def _parser() -> argparse.ArgumentParser:
         help="solver for the replay (default: the search's fixed-step solver)",
     )
     replay.add_argument("--gif", metavar="PATH", help="also write the motion as a GIF here")
+    compare = sub.add_parser(
+        "compare",
+        help="stochastic search vs search + gradient refinement, equal budgets",
+        description="Run a config's search alone and search + refine (gradient ascent on "
+        "its best controllers) on equal numbers of simulations, over several seeds; write "
+        "a table (compare.md, compare.csv), a plot (compare.png) and summary.json.",
+    )
+    compare.add_argument("config")
+    compare.add_argument("--seeds", default="0,1,2", help="comma-separated (default 0,1,2)")
+    compare.add_argument(
+        "--fraction", type=float, default=0.5, help="share of the budget for the search"
+    )
+    compare.add_argument("--top-k", type=int, default=10, help="controllers refined")
+    compare.add_argument("--learning-rate", type=float, default=0.01, help="Adam's step")
+    compare.add_argument(
+        "--gradient-cost",
+        type=float,
+        help="simulations one gradient step costs per controller (default: measured)",
+    )
+    compare.add_argument("--out", metavar="DIR", help="results directory")
+    compare.add_argument("--evaluations", type=int, help="override [search] evaluations")
+    compare.add_argument("--batch", type=int, help="override [search] batch")
+    compare.add_argument("--quiet", action="store_true")
     run_options(p)  # `python -m jaxmotion [options]` runs the default experiment
     return p
 
@@ -162,6 +187,38 @@ def _replay(args) -> int:
     return 0
 
 
+def _compare(args) -> int:
+    from .compare import CompareSettings, run_compare
+    from .config import ConfigError
+
+    try:
+        seeds = tuple(int(x) for x in args.seeds.split(","))
+    except ValueError:
+        raise ConfigError(
+            f"--seeds = {args.seeds!r}; allowed: comma-separated integers, e.g. 0,1,2"
+        ) from None
+    experiment = _load(
+        Path(args.config),
+        argparse.Namespace(seed=None, evaluations=args.evaluations, batch=args.batch),
+    )
+    try:
+        settings = CompareSettings(
+            seeds=seeds,
+            fraction=args.fraction,
+            top_k=args.top_k,
+            learning_rate=args.learning_rate,
+            gradient_cost=args.gradient_cost,
+        )
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+    say = None if args.quiet else (lambda msg: print(f"compare: {msg}", file=sys.stderr))
+    folder = run_compare(experiment, settings, directory=args.out, progress=say)
+    if not args.quiet:
+        print((folder / "compare.md").read_text(), file=sys.stderr)
+    print(folder)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     # One CPU device per core, before anything starts JAX (the application's call).
@@ -184,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"{experiment.search['evaluations']} evaluations)"
             )
             return 0
+        if args.command == "compare":
+            return _compare(args)
         return _replay(args)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -11,7 +11,7 @@ import optax
 from jaxtyping import Array, Float
 
 from .._control.base import AbstractController
-from .._task import Task, _batch_size, _local_fitness, _replicated, _sharded
+from .._task import _MIN_SHARE, Task, _batch_size, _local_fitness, _padded, _replicated
 from .history import History
 
 
@@ -95,14 +95,16 @@ def _local_value_and_grad(task: Task, trainable, frozen, smoothing: Smoothing):
 
 @eqx.filter_jit
 def _value_and_grad(task: Task, params, spec, smoothing: Smoothing):
-    """Smoothed fitness and its gradient for every controller (leading batch axis), sharded
-    over the devices like `Task.evaluate`."""
+    """Smoothed fitness and its gradient for every controller (leading batch axis)."""
 
-    def fn(t, p):
-        trainable, frozen = eqx.partition(p, spec)
-        return _local_value_and_grad(t, trainable, frozen, smoothing)
-
-    return _sharded(fn, task, params)
+    # One device: reverse-mode through diffrax inside `shard_map` fails in equinox's
+    # closure conversion (it sees the per-device shapes), so gradients are not yet sharded.
+    # Padding to 16 lanes keeps the forward values identical to `Task.evaluate`'s.
+    batch = _batch_size(params)
+    padded = _padded(params, max(batch, _MIN_SHARE))
+    trainable, frozen = eqx.partition(padded, spec)
+    out = _local_value_and_grad(task, trainable, frozen, smoothing)
+    return jax.tree_util.tree_map(lambda a: a[:batch], out)
 
 
 @eqx.filter_jit
