@@ -31,8 +31,15 @@ TERMS = {
     "roll": {"roll": {"term": "rotation", "axis": "forward", "absolute": True, "weight": 1.0}},
     "net_yaw": {"net_yaw": 1.0},
     "final_tilt": {"final_tilt": 1.0},
-    "contact_time": {"contact_time": 1.0},
-    "upright": {"upright": 1.0},
+    # Every piecewise-constant term of the configs at once: zero gradient, zero differences.
+    "piecewise": {
+        "contact_time": 1.0,
+        "upright": 1.0,
+        "on_ground_at_end": 1.0,
+        "hops": 1.0,
+        "fallen": 1.0,
+        "min_contacts": 1.0,
+    },
 }
 
 

@@ -229,9 +229,9 @@ def refine(
 
 
 def gradient_cost(task: Task, params: AbstractController, smoothing: Smoothing | None = None):
-    """How many simulations one gradient step costs, measured: the wall time of the
+    """How many simulations one gradient step costs, measured: the median wall time of the
     forward-and-backward pass over a batch divided by that of `task.evaluate` on it (both
-    compiled first). `refine` also evaluates the true fitness each step unless the
+    compiled first, three calls each). `refine` also evaluates the true fitness each step unless the
     smoothing is off; add 1 for that."""
     import time
 
@@ -239,11 +239,14 @@ def gradient_cost(task: Task, params: AbstractController, smoothing: Smoothing |
     params = _replicated(params)
     spec = task.space.trainable(jax.tree_util.tree_map(lambda a: a[0], params))
 
-    def timed(fn):
-        jax.block_until_ready(fn())
-        start = time.perf_counter()
-        jax.block_until_ready(fn())
-        return time.perf_counter() - start
+    def timed(fn, repeats=3):
+        jax.block_until_ready(fn())  # compile
+        runs = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            jax.block_until_ready(fn())
+            runs.append(time.perf_counter() - start)
+        return sorted(runs)[repeats // 2]  # the median: one slow call must not decide it
 
     grad_s = timed(lambda: _value_and_grad(task, params, spec, smoothing))
     eval_s = timed(lambda: task.evaluate(params))
