@@ -122,13 +122,11 @@ def _update(optimizer, space, spec, params, grads, opt_state, fitness, best, bes
     stepped = eqx.combine(optax.apply_updates(trainable, updates), frozen)
     stepped = jax.vmap(space.project)(stepped)
 
-    def keep(new, old):
-        mask = ok.reshape(ok.shape + (1,) * (new.ndim - 1))
-        return jnp.where(mask, new, old)
-
-    new_params = jax.tree_util.tree_map(keep, stepped, params)
+    new_params = jax.tree_util.tree_map(lambda n, o: _select(ok, n, o), stepped, params)
     new_state = jax.tree_util.tree_map(
-        lambda n, o: keep(n, o) if eqx.is_array(n) and n.ndim else n, new_state, opt_state
+        lambda n, o: _select(ok, n, o) if eqx.is_array(n) and n.ndim else n,
+        new_state,
+        opt_state,
     )
     best, best_fitness = _keep_better(params, fitness, best, best_fitness)
     return new_params, new_state, best, best_fitness, jnp.sum(~ok)
@@ -137,12 +135,13 @@ def _update(optimizer, space, spec, params, grads, opt_state, fitness, best, bes
 def _keep_better(params, fitness, best, best_fitness):
     """Each controller's best version so far, and its fitness."""
     better = fitness > best_fitness
-    best = jax.tree_util.tree_map(
-        lambda p, b: jnp.where(better.reshape(better.shape + (1,) * (p.ndim - 1)), p, b),
-        params,
-        best,
-    )
+    best = jax.tree_util.tree_map(lambda p, b: _select(better, p, b), params, best)
     return best, jnp.maximum(fitness, best_fitness)
+
+
+def _select(mask, new, old):
+    """Per controller (leading axis), `new` where `mask` holds, else `old`."""
+    return jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
 
 
 def fitness_and_gradient(
@@ -153,10 +152,15 @@ def fitness_and_gradient(
     through the whole fixed-step simulation. A blown-up run has fitness `-inf` and a
     non-finite gradient."""
     smoothing = Smoothing() if smoothing is None else smoothing
+    params, spec = _prepared(task, params)
+    return _value_and_grad(task, params, spec, smoothing)
+
+
+def _prepared(task: Task, params):
+    """The batch placed as `Task.evaluate` places it, and the family's trainable spec."""
     _batch_size(params)
     params = _replicated(params)
-    spec = task.space.trainable(jax.tree_util.tree_map(lambda a: a[0], params))
-    return _value_and_grad(task, params, spec, smoothing)
+    return params, task.space.trainable(jax.tree_util.tree_map(lambda a: a[0], params))
 
 
 def refine(
@@ -191,8 +195,8 @@ def refine(
     - `optimizer`: e.g. `optax.adam(1e-2)`.
     - `steps`: gradient steps.
     - `smoothing`: see `Smoothing`; the default (`None`) is no smoothing.
-    - `callback`: called after every step with the step, the controllers and their true
-        fitness.
+    - `callback`: called after every step with the step number, the updated controllers
+        and the true fitness of the controllers that step started from.
 
     **Returns:** `(best, result)`: every controller's best version seen (by true fitness,
     the starting point included) and a `RefineResult`. The history holds the true fitness of
@@ -201,26 +205,26 @@ def refine(
     smoothing = Smoothing() if smoothing is None else smoothing
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
         raise ValueError(f"refine steps = {steps!r}; allowed: an integer >= 0")
-    _batch_size(params)
-    params = _replicated(params)
-    spec = task.space.trainable(jax.tree_util.tree_map(lambda a: a[0], params))
+    params, spec = _prepared(task, params)
     opt_state = jax.vmap(optimizer.init)(eqx.filter(params, spec))
     best = params
     best_fitness = jnp.full(_batch_size(params), -jnp.inf)
     parts, skipped = [], 0
-    for k in range(steps + 1):
+    for k in range(steps):
         smoothed_fitness, grads = _value_and_grad(task, params, spec, smoothing)
         fitness = smoothed_fitness if smoothing.is_identity else task.evaluate(params)
         parts.append(History(np.asarray(fitness), np.full(fitness.shape[0], k)))
-        if k == steps:
-            best, best_fitness = _keep_better(params, fitness, best, best_fitness)
-            break
         params, opt_state, best, best_fitness, bad = _update(
             optimizer, task.space, spec, params, grads, opt_state, fitness, best, best_fitness
         )
         skipped += int(bad)
         if callback is not None:
             callback(k + 1, params, np.asarray(fitness))
+    # The controllers after the last step need their fitness only, not another gradient
+    # (`evaluate` computes the very values the gradient call would, see `_value_and_grad`).
+    fitness = task.evaluate(params)
+    parts.append(History(np.asarray(fitness), np.full(fitness.shape[0], steps)))
+    best, best_fitness = _keep_better(params, fitness, best, best_fitness)
     history = History.concatenate(parts)
     return best, RefineResult(
         fitness=np.asarray(best_fitness),
@@ -236,8 +240,7 @@ def gradient_cost(task: Task, params: AbstractController, smoothing: Smoothing |
     import time
 
     smoothing = Smoothing() if smoothing is None else smoothing
-    params = _replicated(params)
-    spec = task.space.trainable(jax.tree_util.tree_map(lambda a: a[0], params))
+    params, spec = _prepared(task, params)
 
     def timed(fn, repeats=3):
         jax.block_until_ready(fn())  # compile
