@@ -8,6 +8,16 @@ import pytest
 import jaxmotion as jm
 
 CUBE_POINTS = np.asarray(jm.lattices.cube().points)
+ONE_POINT = np.zeros((1, 3))
+
+# Float32 sums of a few hundred per-sample increments: relative error of angles and lengths.
+ACCUMULATED_RTOL = 1e-5
+# Float32 cancellation of increments that should sum to nothing (rad, turns or m).
+CANCELLED_ATOL = 1e-5
+# Central finite differences in float64: step and agreement with the gradient.
+FD_STEP = 1e-6
+FD_RTOL = 1e-6
+FD_ATOL = 1e-8
 
 
 def rot_z(a):
@@ -236,3 +246,209 @@ def test_registering_a_term():
     assert float(jm.Objective({name: {"weight": 2.0, "offset": 1.0}})(tr)) == pytest.approx(5.0)
     with pytest.raises(ValueError, match="already registered"):
         jm.register_term(name)(lambda trajectory: trajectory.com[-1, 2])
+
+
+def slide(start, end, contact, t=11):
+    """One point moving in a straight line with the given contact pattern (t,) or (t, 1)."""
+    contact = np.asarray(contact, bool).reshape(t, 1)
+    return make(line(start, end, t), contact=contact, shape=ONE_POINT)
+
+
+def test_contact_distance_counts_only_travel_in_contact_at_both_ends():
+    always = np.ones(11, bool)
+    assert value("contact_distance", slide([0, 0, 0], [1, 0, 0], always)) == pytest.approx(
+        1.0, rel=ACCUMULATED_RTOL
+    )
+    # Horizontal length only: a 3-4-5 slide that also sinks counts 5, not its 3D length.
+    assert value("contact_distance", slide([0, 0, 0], [3, 4, -1], always)) == pytest.approx(
+        5.0, rel=ACCUMULATED_RTOL
+    )
+    assert value("contact_distance", slide([0, 0, 0.5], [1, 0, 0.5], ~always)) == 0
+    # Contact over samples 2..5 (4 samples): only the 3 intervals inside it count; the
+    # intervals where contact starts (1 -> 2) and ends (5 -> 6) count nothing.
+    window = np.zeros(11, bool)
+    window[2:6] = True
+    assert value("contact_distance", slide([0, 0, 0], [1, 0, 0], window)) == pytest.approx(
+        0.3, rel=ACCUMULATED_RTOL
+    )
+    # Hopping: contact at every other sample, so every interval starts or ends a contact.
+    hopping = np.arange(11) % 2 == 0
+    assert value("contact_distance", slide([0, 0, 0], [1, 0, 0], hopping)) == 0
+
+
+def test_contact_distance_sums_over_points_like_a_python_loop():
+    rng = np.random.default_rng(0)
+    t, n = 30, 5
+    points = rng.normal(size=(t, n, 3))
+    contact = rng.random((t, n)) < 0.6
+    expected = 0.0
+    for k in range(t - 1):
+        for i in range(n):
+            if contact[k, i] and contact[k + 1, i]:
+                expected += np.hypot(*(points[k + 1, i, :2] - points[k, i, :2]))
+    tr = make(np.zeros((t, 3)), contact=contact, shape=ONE_POINT)
+    tr = jm.Trajectory(
+        ts=tr.ts,
+        points=jnp.asarray(points),
+        com=tr.com,
+        frame=tr.frame,
+        contact=tr.contact,
+        finite=tr.finite,
+    )
+    assert value("contact_distance", tr) == pytest.approx(expected, rel=ACCUMULATED_RTOL)
+    # A rigid cube sliding 1 m with its 4 bottom points down: 4 points, 1 m each.
+    cube = make(line([0, 0, 0.5], [0, 1, 0.5]))
+    assert value("contact_distance", cube) == pytest.approx(4.0, rel=ACCUMULATED_RTOL)
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+@pytest.mark.parametrize("samples", [4, 5, 9, 41, 200])
+def test_rotations_counts_turns_about_the_lateral_axis_whatever_the_spacing(samples, direction):
+    """A cartwheel about world y (the left axis) by 2 pi, in steps from 120 degrees down."""
+    still = np.full((samples, 3), 0.5)
+    once = make(still, frames=spin(rot_y, direction * 2 * np.pi, samples))
+    assert value("rotations", once) == pytest.approx(1.0, rel=ACCUMULATED_RTOL)
+    twice = make(
+        np.full((2 * samples - 1, 3), 0.5),
+        frames=spin(rot_y, direction * 4 * np.pi, 2 * samples - 1),
+    )
+    assert value("rotations", twice) == pytest.approx(2.0, rel=ACCUMULATED_RTOL)
+
+
+def test_rotations_ignores_rocking_and_other_axes():
+    # Rocking about the lateral axis, 0 -> +60 -> -60 -> 0 degrees, three times.
+    swing = np.concatenate(
+        [np.linspace(0, 60, 7), np.linspace(60, -60, 13)[1:], np.linspace(-60, 0, 7)[1:-1]]
+    )
+    angles = np.deg2rad(np.concatenate([np.tile(swing, 3), [0.0]]))
+    rocking = make(np.full((angles.size, 3), 0.5), frames=np.stack([rot_y(a) for a in angles]))
+    assert value("rotation", rocking) > 2 * np.pi  # it did turn a lot, back and forth
+    assert value("rotations", rocking) == pytest.approx(0.0, abs=CANCELLED_ATOL)
+    still = np.full((41, 3), 0.5)
+    assert value("rotations", make(still, frames=spin(rot_z, 2 * np.pi))) == pytest.approx(
+        0.0, abs=CANCELLED_ATOL
+    )
+    assert value("rotations", make(still, frames=spin(rot_x, 2 * np.pi))) == pytest.approx(
+        0.0, abs=CANCELLED_ATOL
+    )
+    # The lateral axis is the body's, not world y: facing +y, the left axis is world -x.
+    facing_y = np.stack([rot_x(a) @ rot_z(np.pi / 2) for a in np.linspace(0, 2 * np.pi, 41)])
+    assert value("rotations", make(still, frames=facing_y)) == pytest.approx(
+        1.0, rel=ACCUMULATED_RTOL
+    )
+
+
+@pytest.mark.parametrize("samples", [4, 7, 61])
+def test_heading_is_the_signed_unwrapped_turn_of_the_forward_axis(samples):
+    still = np.full((samples, 3), 0.5)
+    for degrees in (90.0, -90.0, 270.0, -270.0, 300.0):
+        turn = make(still, frames=spin(rot_z, np.deg2rad(degrees), samples))
+        assert value("heading", turn) == pytest.approx(np.deg2rad(degrees), rel=ACCUMULATED_RTOL)
+        assert value("heading", turn, absolute=True) == pytest.approx(
+            np.deg2rad(abs(degrees)), rel=ACCUMULATED_RTOL
+        )
+        # An upright turn: the same as the net rotation about the vertical.
+        assert value("heading", turn) == pytest.approx(
+            value("net_yaw", turn, signed=True), rel=ACCUMULATED_RTOL
+        )
+    # Crossing the -pi / pi cut of atan2: from 170 to 190 degrees is +20 degrees.
+    across = make(
+        still, frames=np.stack([rot_z(a) for a in np.deg2rad(np.linspace(170, 190, samples))])
+    )
+    assert value("heading", across) == pytest.approx(np.deg2rad(20), rel=ACCUMULATED_RTOL)
+
+
+def test_heading_follows_the_forward_axis_not_the_vertical_spin():
+    still = np.full((41, 3), 0.5)
+    # Pitched 45 degrees nose down, then rolled a quarter turn about its own forward axis:
+    # the forward axis never moves, but the angular velocity has a vertical component.
+    rolled = np.stack([rot_y(np.pi / 4) @ rot_x(a) for a in np.linspace(0, np.pi / 2, 41)])
+    tr = make(still, frames=rolled)
+    assert value("heading", tr) == pytest.approx(0.0, abs=CANCELLED_ATOL)
+    assert value("net_yaw", tr, signed=True) == pytest.approx(
+        -np.pi / 2 * np.sin(np.pi / 4), rel=ACCUMULATED_RTOL
+    )
+    # A somersault points the forward axis straight down on the way: no heading change.
+    assert value("heading", make(still, frames=spin(rot_y, 2 * np.pi))) == pytest.approx(
+        0.0, abs=CANCELLED_ATOL
+    )
+
+
+def motions():
+    """A few varied motions of the cube: sliding, pitching, turning, all at once. The pitch
+    stays under 90 degrees: where the forward axis passes vertical, `heading` jumps by pi."""
+    t = 21
+    out = []
+    for k in range(4):
+        com = line([0, 0, 0.5 - 0.01 * k], [0.3 * k, 0.2, 0.5 - 0.01 * k], t)
+        frames = np.stack(
+            [rot_z(0.4 * k * s) @ rot_y((k - 1.5) * 0.8 * s) for s in np.linspace(0, 1, t)]
+        )
+        out.append(make(com, frames=frames))
+    return out
+
+
+NEW_TERMS = ["contact_distance", "rotations", "heading"]
+
+
+@pytest.mark.parametrize("name", NEW_TERMS)
+def test_new_terms_vmap_equals_a_python_loop_and_jit_equals_no_jit(name):
+    fn = jm.objective_terms()[name].fn
+    trs = motions()
+    loop = np.array([float(fn(tr)) for tr in trs])
+    assert np.ptp(loop) > 0  # the motions differ in this term
+    batch = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trs)
+    np.testing.assert_allclose(
+        np.asarray(jax.jit(jax.vmap(fn))(batch)), loop, rtol=ACCUMULATED_RTOL
+    )
+
+
+@pytest.mark.parametrize("name", NEW_TERMS)
+def test_new_terms_have_finite_gradients_that_match_finite_differences(name, x64):
+    fn = jm.objective_terms()[name].fn
+
+    @jax.jit
+    def f(points, frame, tr):
+        return fn(
+            jm.Trajectory(
+                ts=tr.ts,
+                points=points,
+                com=tr.com,
+                frame=frame,
+                contact=tr.contact,
+                finite=tr.finite,
+            )
+        )
+
+    # Standing still (points resting, zero rotation) and a somersault (forward axis vertical
+    # at two samples): where sqrt and atan2 have singular slopes, the gradient stays finite.
+    grad = jax.jit(jax.grad(f, argnums=(0, 1)))
+    still = make(np.full((11, 3), 0.5))
+    flip = make(np.full((5, 3), 0.5), frames=spin(rot_y, 2 * np.pi, 5))
+    for tr in (still, flip):
+        for g in grad(tr.points, tr.frame, tr):
+            assert np.all(np.isfinite(np.asarray(g)))
+    rng = np.random.default_rng(1)
+    for tr in motions():
+        grads = grad(tr.points, tr.frame, tr)
+        dp, df = rng.normal(size=tr.points.shape), rng.normal(size=tr.frame.shape)
+        plus = f(tr.points + FD_STEP * dp, tr.frame + FD_STEP * df, tr)
+        minus = f(tr.points - FD_STEP * dp, tr.frame - FD_STEP * df, tr)
+        numeric = (float(plus) - float(minus)) / (2 * FD_STEP)
+        analytic = float(jnp.sum(grads[0] * dp) + jnp.sum(grads[1] * df))
+        assert analytic == pytest.approx(numeric, rel=FD_RTOL, abs=FD_ATOL)
+
+
+def test_new_terms_in_an_objective():
+    # One point sliding 1 m in contact while the body turns a quarter turn clockwise.
+    tr = make(
+        line([0, 0, 0], [1.0, 0, 0]),
+        frames=spin(rot_z, -np.pi / 2, 11),
+        contact=np.ones((11, 1), bool),
+        shape=ONE_POINT,
+    )
+    objective = jm.Objective(
+        {"contact_distance": 1.0, "turn": {"term": "heading", "weight": 2.0, "absolute": True}}
+    )
+    assert float(objective(tr)) == pytest.approx(1.0 + 2 * np.pi / 2, rel=ACCUMULATED_RTOL)
+    assert jm.Objective(objective.to_dict()).spec == objective.spec

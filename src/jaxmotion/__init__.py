@@ -1,14 +1,17 @@
 """jaxmotion: automatic motion synthesis for animated characters, in JAX.
 
-Bodies (mass-spring lattices), controllers with a handful of parameters, objectives that
-score a motion, and stochastic searches that find good parameters; the simulator runs on
-diffrax, vectorised with `vmap` and differentiable. Fitness is always maximised.
+Bodies (mass-spring lattices, articulated figures), controllers with a handful of
+parameters, objectives that score a motion, and stochastic searches that find good
+parameters; the simulator runs on diffrax, vectorised with `vmap` and differentiable.
+Fitness is always maximised.
 """
 
 from . import checks as checks
+from . import figures as figures
 from . import lattices as lattices
 from ._body.base import AbstractBody as AbstractBody
 from ._body.base import AbstractDynamics as AbstractDynamics
+from ._body.figure import Figure as Figure
 from ._body.lattice import Lattice as Lattice
 from ._control.base import AbstractController as AbstractController
 from ._control.base import AbstractControllerSpace as AbstractControllerSpace
@@ -17,6 +20,8 @@ from ._control.deformations import deform as deform
 from ._control.regimes import PERTURBATIONS as PERTURBATIONS
 from ._control.regimes import Regimes as Regimes
 from ._control.regimes import RegimesSpace as RegimesSpace
+from ._control.time_bsr import TimeBSR as TimeBSR
+from ._control.time_bsr import TimeBSRSpace as TimeBSRSpace
 from ._devices import use_cpu_cores as use_cpu_cores
 from ._objective import terms as _builtin_terms  # noqa: F401  (registers the built-in terms)
 from ._objective.registry import Objective as Objective
@@ -33,6 +38,10 @@ from ._search.refine import Smoothing as Smoothing
 from ._search.refine import fitness_and_gradient as fitness_and_gradient
 from ._search.refine import gradient_cost as gradient_cost
 from ._search.refine import refine as refine
+from ._search.serial import SerialSearch as SerialSearch
+from ._search.serial import SerialSearchResult as SerialSearchResult
+from ._search.serial import SerialSearchState as SerialSearchState
+from ._search.serial import serial_search as serial_search
 from ._sim.simulate import simulate as simulate
 from ._sim.trajectory import Observation as Observation
 from ._sim.trajectory import Trajectory as Trajectory
@@ -59,6 +68,7 @@ __all__ = [
     "AbstractController",
     "AbstractControllerSpace",
     "AbstractDynamics",
+    "Figure",
     "HillClimbState",
     "History",
     "Lattice",
@@ -70,12 +80,18 @@ __all__ = [
     "Regimes",
     "RegimesSpace",
     "SearchResult",
+    "SerialSearch",
+    "SerialSearchResult",
+    "SerialSearchState",
     "Smoothing",
     "Task",
+    "TimeBSR",
+    "TimeBSRSpace",
     "Trajectory",
     "World",
     "checks",
     "deform",
+    "figures",
     "fitness_and_gradient",
     "floor_force",
     "gradient_cost",
@@ -84,6 +100,7 @@ __all__ = [
     "parallel_hill_climb",
     "refine",
     "register_term",
+    "serial_search",
     "simulate",
     "use_cpu_cores",
     "viz",

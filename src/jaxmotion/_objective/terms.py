@@ -1,8 +1,11 @@
-"""The built-in objective terms: the first paper's Table 1 and a few more.
+"""The built-in objective terms: the first paper's Table 1, the second paper's Table 3 and a
+few more.
 
 Each term is a function of one `Trajectory` (sampled at its save times) and returns a scalar.
 Angles are in radians unless an option says degrees; lengths in metres; times in seconds.
 """
+
+import math
 
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -96,6 +99,26 @@ def hops(trajectory: Trajectory) -> Float[Array, ""]:
     return jnp.sum(touching[:-1] & ~touching[1:]).astype(float)
 
 
+@register_term("contact_distance")
+def contact_distance(trajectory: Trajectory) -> Float[Array, ""]:
+    """Horizontal distance travelled by points while in contact with the floor (m; the second
+    paper's Table 3, reward it for a shuffling or sliding gait).
+
+    For every point and every save interval in which the point touches the floor at both
+    ends, the horizontal (x-y) length of its displacement over the interval; summed over
+    points and intervals. An interval in which contact starts or ends counts nothing, so a
+    hopping gait scores low. The sum is over points, so a body sliding rigidly with `k` points
+    down scores `k` times its own slide.
+    """
+    step = jnp.diff(trajectory.points[..., :2], axis=0)
+    d2 = jnp.sum(step * step, axis=-1)
+    # sqrt has an infinite slope at 0: a point resting still would give a NaN gradient.
+    moved = d2 > 0
+    length = jnp.where(moved, jnp.sqrt(jnp.where(moved, d2, 1.0)), 0.0)
+    held = trajectory.contact[:-1] & trajectory.contact[1:]
+    return jnp.sum(jnp.where(held, length, 0.0))
+
+
 @register_term("on_ground_at_end")
 def on_ground_at_end(trajectory: Trajectory, min_points: int = 1) -> Float[Array, ""]:
     """1 if at least `min_points` points touch the floor at the final time, else 0."""
@@ -124,6 +147,21 @@ def rotation(trajectory: Trajectory, axis: str = "any", absolute: bool = False) 
     return jnp.abs(net) if absolute else net
 
 
+@register_term("rotations")
+def rotations(trajectory: Trajectory) -> Float[Array, ""]:
+    """Number of full-body rotations about the body's lateral axis (turns, >= 0; the second
+    paper's Table 3, reward it for a cartwheel or a somersault).
+
+    The size of the net signed rotation about the body's left axis in turns (1.0 = one full
+    turn): `rotation(axis="left", absolute=True) / (2 pi)`. The angle is accumulated from the
+    rotations between consecutive samples (each must be under half a turn), so it unwraps:
+    two cartwheels give 2.0, while rocking back and forth gives about 0. For a planar figure
+    whose left axis is normal to its plane of motion, this counts its turns in that plane
+    whichever way it goes; turning about the body's up or forward axis does not count.
+    """
+    return rotation(trajectory, axis="left", absolute=True) / (2.0 * math.pi)
+
+
 @register_term("net_yaw")
 def net_yaw(trajectory: Trajectory, signed: bool = False) -> Float[Array, ""]:
     """Net rotation about the world vertical (rad): the absolute value unless `signed`
@@ -131,6 +169,37 @@ def net_yaw(trajectory: Trajectory, signed: bool = False) -> Float[Array, ""]:
     inc = _increments(trajectory.frame, world=True)
     total = jnp.sum(inc[:, 2])
     return total if signed else jnp.abs(total)
+
+
+def _signed_angles(a, b):
+    """Signed angles (rad, in (-pi, pi]) from 2D vectors `a` to `b`, counter-clockwise
+    positive; 0 where either vector vanishes (and there, gradient 0 rather than NaN)."""
+    cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    dot = jnp.sum(a * b, axis=-1)
+    ok = cross * cross + dot * dot > 1e-24
+    return jnp.where(ok, jnp.arctan2(jnp.where(ok, cross, 0.0), jnp.where(ok, dot, 1.0)), 0.0)
+
+
+@register_term("heading")
+def heading(trajectory: Trajectory, absolute: bool = False) -> Float[Array, ""]:
+    """Change of heading: the net signed turn of the body's forward axis seen from above,
+    from the first to the last sample (rad, counter-clockwise positive; the second paper's
+    measure for Rex's turn). `absolute=True` gives its size whichever way it went.
+
+    The heading is the direction of the forward axis's horizontal part. It is unwrapped by
+    summing the signed angles between consecutive samples (each must be under half a turn),
+    so a turn of 270 degrees gives 3 pi / 2, not -pi / 2. The heading is undefined while the
+    forward axis is vertical: such a sample adds nothing, and passing through vertical (a
+    somersault) flips the heading by half a turn, either way.
+
+    Compared with `net_yaw`: the two agree while the body turns about the world vertical (an
+    upright turn). `net_yaw` integrates the vertical component of the body's angular
+    velocity; `heading` follows only where the forward axis points, so rolling a pitched body
+    about its own forward axis changes `net_yaw` but not `heading`.
+    """
+    h = trajectory.frame[:, :2, 0]
+    net = jnp.sum(_signed_angles(h[:-1], h[1:]))
+    return jnp.abs(net) if absolute else net
 
 
 def _angle_between(a, b):

@@ -1,0 +1,676 @@
+"""Articulated figures of rigid rods (second paper, section 2.1.1): kinematic joints, a root
+that moves by rigid-body dynamics of the whole figure, penalty contact at the rod endpoints.
+
+The formulation follows `notes/articulated-physics.md` (checked there against MuJoCo):
+
+- each free joint angle follows `tau^2 th'' + 2 tau th' + (th - th0) = 0` toward the target
+  `th0` the controller commands, and stops at the joint's range;
+- the centre of mass `c` obeys `M c'' = sum of external forces` (gravity, contact);
+- the angular momentum about `c`, `L` (world frame), obeys `L' = sum (p_i - c) x f_i` over the
+  contact forces `f_i` at the rod endpoints `p_i`;
+- the root's angular velocity follows from `L = I w + h`, with `I` the whole figure's inertia
+  about `c` as it stands now and `h` the angular momentum the joint rates alone carry (rod
+  centres moving and rods spinning relative to the root): internal motion changes `I` and the
+  root turns so that, without contact, `L` stays what it was (a falling cat turns with
+  `L = 0`).
+"""
+
+import math
+from collections.abc import Sequence
+from typing import ClassVar, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import ArrayLike, Float
+
+from .._sim.trajectory import Observation
+from .._world import World, floor_force
+from . import _symbolic as s
+from .base import AbstractBody, AbstractDynamics
+
+
+class Joint(NamedTuple):
+    """One joint angle of a `Figure`: rod `rod` (never the root, rod 0) turns relative to its
+    parent rod by this angle about `axis`, within `[lo, hi]` (radians).
+
+    `axis` is given in the rest pose's world coordinates and turns with the parent rod. A rod
+    with two joint angles (a 3D joint, the second paper's Figure 6) turns first about the
+    first one's axis, then about the second one's axis as the first rotation carried it. A
+    joint with `lo == hi` is fixed at that angle: the controller does not command it and it
+    costs nothing per step.
+    """
+
+    rod: int
+    axis: tuple[float, float, float]
+    lo: float
+    hi: float
+
+
+_AXIS_Y = (0.0, 1.0, 0.0)
+
+
+def _fail(message: str):
+    raise ValueError(message)
+
+
+def _floats(name, value, shape) -> np.ndarray:
+    try:
+        a = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"Figure.{name} = {value!r}; allowed: numbers of shape {shape}") from None
+    return a
+
+
+class Figure(AbstractBody):
+    """An articulated figure: a tree of rigid rods joined at their endpoints (second paper).
+
+    Each rod is a uniform solid cylinder between two nodes. Rod 0 is the root; every other rod
+    starts at a node some earlier rod placed (its proximal node, where its joint is) and ends
+    at a node of its own, so the rods form a tree and `num_nodes = num_rods + 1`. The rest pose
+    (every joint angle 0) is given by the nodes' positions; joint angles turn rods relative to
+    their parent (the earliest rod that has the proximal node), about axes given in the rest
+    pose (see `Joint`).
+
+    The state is the centre of mass and its velocity, the root's orientation (a quaternion),
+    the angular momentum about the centre of mass, and the free joint angles and their rates.
+    Observables: `points` are the nodes (rod endpoints, the contact points), `frame` is the
+    root rod's orientation applied to the figure's `frame`.
+
+    **Arguments:**
+
+    - `nodes`: `(num_nodes, 3)` node positions in the rest pose (z up; the figure is placed
+        with its lowest point on the floor, whatever the heights given).
+    - `rods`: `(num_rods, 2)` node pairs `(proximal, distal)`; rod 0 is the root.
+    - `masses`: kg per rod (one number for all, or one per rod).
+    - `joints`: the joint angles (`Joint(rod, axis, lo, hi)`, radians). Rods without a joint
+        are rigidly attached to their parent.
+    - `radii`: rod radii (m; one for all or one per rod): the rods' inertia about their own
+        axis, which keeps the figure's inertia invertible when rods line up.
+    - `planar`: a planar figure moves in the world's x-z plane: its nodes have y = 0 and every
+        joint turns about the y axis. Its state then carries only the planar components.
+    - `frame`: the body frame at rest, columns forward, left, up (default: x, y, z).
+    - `name`: a label for plots and summaries.
+
+    The start pose has every free angle at 0, or at the nearer end of its range when 0 is
+    outside it.
+
+    **Raises:** `ValueError`, naming the rod, node or joint, for a rod to a missing node or a
+    node no earlier rod placed, a rod of non-positive length, mass or radius, a joint of a
+    missing rod or of the root, a joint range with `lo > hi`, a zero axis, or a planar figure
+    off the plane.
+
+    The geometry is kept as constants (static fields): the simulation is traced with the
+    figure's numbers built in, so zeros of a planar figure and fixed joints fold away at
+    compile time (one compilation per figure).
+    """
+
+    nodes: tuple[tuple[float, float, float], ...] = eqx.field(static=True)
+    rods: tuple[tuple[int, int], ...] = eqx.field(static=True)
+    masses: tuple[float, ...] = eqx.field(static=True)
+    radii: tuple[float, ...] = eqx.field(static=True)
+    joints: tuple[Joint, ...] = eqx.field(static=True)
+    planar: bool = eqx.field(static=True)
+    frame: tuple[tuple[float, float, float], ...] = eqx.field(static=True)
+    name: str = eqx.field(static=True)
+
+    def __init__(
+        self,
+        nodes: Float[ArrayLike, "num_nodes 3"],
+        rods: Sequence[tuple[int, int]],
+        *,
+        masses: float | Float[ArrayLike, " num_rods"] = 1.0,
+        joints: Sequence[Joint | tuple] = (),
+        radii: float | Float[ArrayLike, " num_rods"] = 0.03,
+        planar: bool = False,
+        frame: Float[ArrayLike, "3 3"] | None = None,
+        name: str = "figure",
+    ):
+        nodes_a = _floats("nodes", nodes, "(num_nodes, 3)")
+        if nodes_a.ndim != 2 or nodes_a.shape[1] != 3 or not np.all(np.isfinite(nodes_a)):
+            _fail(f"Figure.nodes has shape {nodes_a.shape}; allowed: finite (num_nodes, 3)")
+        try:
+            rods_a = np.array(rods, dtype=np.int64)
+        except (TypeError, ValueError):
+            rods_a = np.zeros((0, 3))
+        if rods_a.ndim != 2 or rods_a.shape[1] != 2 or rods_a.shape[0] < 1:
+            _fail(f"Figure.rods = {rods!r}; allowed: at least one (proximal, distal) node pair")
+        num_rods, num_nodes = rods_a.shape[0], nodes_a.shape[0]
+        if num_nodes != num_rods + 1:
+            _fail(
+                f"Figure has {num_nodes} nodes and {num_rods} rods; a tree of rods has exactly "
+                "one node more than rods"
+            )
+        placed: set[int] = set()
+        for k, (p, d) in enumerate(rods_a.tolist()):
+            for n in (p, d):
+                if not 0 <= n < num_nodes:
+                    _fail(
+                        f"rod {k} = ({p}, {d}) uses node {n}, which does not exist "
+                        f"(nodes are 0..{num_nodes - 1})"
+                    )
+            if k == 0:
+                if p == d:
+                    _fail(f"rod 0 = ({p}, {d}) joins a node to itself")
+                placed.update((p, d))
+                continue
+            if p not in placed:
+                _fail(
+                    f"rod {k} = ({p}, {d}) starts at node {p}, which no earlier rod reaches; "
+                    "allowed: a rod starts at a node of an earlier rod (the rods form a tree)"
+                )
+            if d in placed:
+                _fail(
+                    f"rod {k} = ({p}, {d}) ends at node {d}, which an earlier rod already "
+                    "reaches; allowed: each rod ends at a new node (no loops)"
+                )
+            placed.add(d)
+        lengths = np.linalg.norm(nodes_a[rods_a[:, 1]] - nodes_a[rods_a[:, 0]], axis=1)
+        for k, length in enumerate(lengths):
+            if not length > 0:
+                _fail(f"rod {k} has length {length:g}; allowed: > 0 (its two nodes coincide)")
+        masses_a = np.broadcast_to(_floats("masses", masses, "(num_rods,)"), (num_rods,))
+        radii_a = np.broadcast_to(_floats("radii", radii, "(num_rods,)"), (num_rods,))
+        for k in range(num_rods):
+            if not (math.isfinite(masses_a[k]) and masses_a[k] > 0):
+                _fail(f"rod {k} has mass {masses_a[k]:g}; allowed: a number > 0 (kg)")
+            if not (math.isfinite(radii_a[k]) and radii_a[k] > 0):
+                _fail(f"rod {k} has radius {radii_a[k]:g}; allowed: a number > 0 (m)")
+        checked: list[Joint] = []
+        per_rod: dict[int, int] = {}
+        for j, joint in enumerate(joints):
+            try:
+                rod, axis, lo, hi = joint
+                rod_i = int(rod)
+                axis_a = np.array(axis, dtype=float).reshape(3)
+                lo, hi = float(lo), float(hi)
+            except (TypeError, ValueError):
+                _fail(f"joint {j} = {joint!r}; allowed: Joint(rod, (ax, ay, az), lo, hi)")
+            if rod_i != rod or not 0 <= rod_i < num_rods:
+                _fail(
+                    f"joint {j} turns rod {rod!r}, which does not exist "
+                    f"(rods are 0..{num_rods - 1})"
+                )
+            if rod_i == 0:
+                _fail(f"joint {j} turns rod 0, the root, which has no parent to turn against")
+            norm = float(np.linalg.norm(axis_a))
+            if not (math.isfinite(norm) and norm > 0):
+                _fail(f"joint {j} (rod {rod_i}) has axis {tuple(axis_a)}; allowed: non-zero")
+            if not (math.isfinite(lo) and math.isfinite(hi)):
+                _fail(f"joint {j} (rod {rod_i}) has range ({lo:g}, {hi:g}); allowed: finite")
+            if lo > hi:
+                _fail(
+                    f"joint {j} (rod {rod_i}) has range lo = {lo:g} > hi = {hi:g} (radians); "
+                    "allowed: lo <= hi (lo == hi fixes the angle)"
+                )
+            per_rod[rod_i] = per_rod.get(rod_i, 0) + 1
+            unit = tuple(float(x) for x in axis_a / norm)
+            if planar and np.max(np.abs(np.array(unit) - np.array(_AXIS_Y))) > 1e-12:
+                _fail(
+                    f"joint {j} (rod {rod_i}) of a planar figure has axis {unit}; allowed: "
+                    "(0, 1, 0) (planar figures turn about the y axis)"
+                )
+            checked.append(Joint(rod_i, _AXIS_Y if planar else unit, lo, hi))
+        for rod_i, count in per_rod.items():
+            if count > (1 if planar else 2):
+                _fail(
+                    f"rod {rod_i} has {count} joint angles; allowed: "
+                    + ("1 (planar figure)" if planar else "at most 2 (second paper, Figure 6)")
+                )
+        if planar and np.any(nodes_a[:, 1] != 0):
+            bad = int(np.argmax(nodes_a[:, 1] != 0))
+            _fail(f"node {bad} of a planar figure has y = {nodes_a[bad, 1]:g}; allowed: y = 0")
+        frame_a = np.eye(3) if frame is None else _floats("frame", frame, "(3, 3)")
+        if frame_a.shape != (3, 3) or not np.allclose(frame_a.T @ frame_a, np.eye(3), atol=1e-9):
+            _fail(f"Figure.frame = {frame!r}; allowed: a 3x3 rotation (orthonormal columns)")
+        if np.linalg.det(frame_a) < 0:
+            _fail("Figure.frame is a reflection; allowed: a right-handed rotation")
+        # Order joints by rod (stable), so kinematics visits each rod's angles together.
+        checked.sort(key=lambda jt: jt.rod)
+        self.nodes = tuple(tuple(float(x) for x in row) for row in nodes_a)
+        self.rods = tuple((int(p), int(d)) for p, d in rods_a.tolist())
+        self.masses = tuple(float(m) for m in masses_a)
+        self.radii = tuple(float(r) for r in radii_a)
+        self.joints = tuple(checked)
+        self.planar = bool(planar)
+        self.frame = tuple(tuple(float(x) for x in row) for row in frame_a)
+        self.name = str(name)
+
+    # ------------------------------------------------------------------ structure
+
+    @property
+    def num_rods(self) -> int:
+        return len(self.rods)
+
+    @property
+    def num_nodes(self) -> int:
+        return len(self.nodes)
+
+    @property
+    def num_points(self) -> int:
+        return len(self.nodes)
+
+    @property
+    def free(self) -> tuple[int, ...]:
+        """Indices (into `joints`) of the free joint angles, the ones a controller commands."""
+        return tuple(j for j, jt in enumerate(self.joints) if jt.lo < jt.hi)
+
+    @property
+    def num_free(self) -> int:
+        return len(self.free)
+
+    @property
+    def ranges(self) -> np.ndarray:
+        """`(num_free, 2)` ranges `(lo, hi)` of the free joint angles, radians."""
+        return np.array([(self.joints[j].lo, self.joints[j].hi) for j in self.free]).reshape(-1, 2)
+
+    @property
+    def start_angles(self) -> np.ndarray:
+        """`(num_free,)` the free angles at t = 0: 0, or the nearer end of the range."""
+        r = self.ranges
+        return np.clip(0.0, r[:, 0], r[:, 1]) if len(r) else np.zeros(0)
+
+    @property
+    def parents(self) -> tuple[int, ...]:
+        """Parent rod of each rod (-1 for the root): the earliest rod reaching its proximal
+        node."""
+        first: dict[int, int] = {}
+        out = []
+        for k, (p, d) in enumerate(self.rods):
+            out.append(-1 if k == 0 else first[p])
+            for n in (p, d):
+                first.setdefault(n, k)
+        return tuple(out)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        n = np.array(self.nodes)
+        r = np.array(self.rods)
+        return np.linalg.norm(n[r[:, 1]] - n[r[:, 0]], axis=1)
+
+    @property
+    def total_mass(self) -> float:
+        return float(sum(self.masses))
+
+    @property
+    def body_length(self) -> float:
+        """Size of the rest pose along the forward axis (the unit of "body lengths")."""
+        local = np.array(self.nodes) @ np.array(self.frame)
+        return float(np.ptp(local[:, 0]))
+
+    # ------------------------------------------------------------------ kinematics
+
+    def _rod_inertias(self):
+        """Each rod's inertia about its centre, rest pose, world axes (constants)."""
+        out = []
+        for k, (p, d) in enumerate(self.rods):
+            u = np.array(self.nodes[d]) - np.array(self.nodes[p])
+            length = float(np.linalg.norm(u))
+            u = u / length
+            m, r = self.masses[k], self.radii[k]
+            axial, transverse = m * r * r / 2, m * (3 * r * r + length * length) / 12
+            inertia = transverse * np.eye(3) + (axial - transverse) * np.outer(u, u)
+            inertia[np.abs(inertia) < 1e-15 * transverse] = 0.0  # exact zeros fold away
+            out.append(tuple(tuple(float(x) for x in row) for row in inertia))
+        return out
+
+    def _all_angles(self, free_angles, free_rates=None):
+        """Every joint angle (and rate) as scalars: free ones from the given lists, fixed ones
+        as constants."""
+        angles, rates = [], []
+        free = {j: i for i, j in enumerate(self.free)}
+        for j, jt in enumerate(self.joints):
+            if j in free:
+                angles.append(free_angles[free[j]])
+                rates.append(0.0 if free_rates is None else free_rates[free[j]])
+            else:
+                angles.append(float(jt.lo))
+                rates.append(0.0)
+        return angles, rates
+
+    def _kinematics(self, angles, rates):
+        """Root-frame kinematics: node positions relative to the root's proximal node, rod
+        orientations relative to the root, and (with rates) node velocities and rod angular
+        velocities relative to the root, all as symbolic scalars."""
+        nodes = [np.array(n) for n in self.nodes]
+        parents = self.parents
+        by_rod: dict[int, list[int]] = {}
+        for j, jt in enumerate(self.joints):
+            by_rod.setdefault(jt.rod, []).append(j)
+        num_nodes = self.num_nodes
+        pos = [None] * num_nodes
+        vel = [None] * num_nodes
+        orient = [None] * self.num_rods
+        spin = [None] * self.num_rods
+        p0, _d0 = self.rods[0]
+        pos[p0], vel[p0] = s.ZERO, s.ZERO
+        for k, (p, d) in enumerate(self.rods):
+            if k == 0:
+                g, w = s.IDENTITY, s.ZERO
+            else:
+                g, w = orient[parents[k]], spin[parents[k]]
+                for j in by_rod.get(k, ()):
+                    axis = self.joints[j].axis
+                    angle, rate = angles[j], rates[j]
+                    if not (s.const(rate) and rate == 0.0):
+                        w = s.vadd(w, s.vscale(rate, s.matvec(g, axis)))
+                    if isinstance(angle, tuple):
+                        c, sn = angle  # precomputed (cos, sin)
+                    elif s.const(angle):
+                        c, sn = math.cos(angle), math.sin(angle)
+                    else:
+                        c, sn = jnp.cos(angle), jnp.sin(angle)
+                    g = s.matmul(g, s.rotation(axis, c, sn))
+            orient[k], spin[k] = g, w
+            rest = tuple(float(x) for x in nodes[d] - nodes[p])
+            seg = s.matvec(g, rest)
+            pos[d] = s.vadd(pos[p], seg)
+            vel[d] = s.vadd(vel[p], s.cross(w, seg))
+        return pos, vel, orient, spin
+
+    def _mass_properties(self, pos, vel, orient, spin):
+        """Centre of mass (root frame), its velocity relative to the root, the inertia about
+        it and the angular momentum `h` of the joint motion about it (root frame)."""
+        masses = self.masses
+        total_mass = self.total_mass
+        mids = [s.vscale(0.5, s.vadd(pos[p], pos[d])) for p, d in self.rods]
+        mid_vel = [s.vscale(0.5, s.vadd(vel[p], vel[d])) for p, d in self.rods]
+
+        def mean(values):
+            return tuple(
+                s.mul(
+                    1.0 / total_mass,
+                    s.total(s.mul(m, c[i]) for m, c in zip(masses, values, strict=True)),
+                )
+                for i in range(3)
+            )
+
+        com, com_vel = mean(mids), mean(mid_vel)
+        inertia = ((0.0,) * 3,) * 3
+        h = s.ZERO
+        for k, own in enumerate(self._rod_inertias()):
+            g, m = orient[k], masses[k]
+            turned = s.matmul(s.matmul(g, own), s.transpose(g))
+            r = s.vsub(mids[k], com)
+            rr = s.dot(r, r)
+            parallel = tuple(
+                tuple(s.mul(m, s.sub(rr if i == j else 0.0, s.mul(r[i], r[j]))) for j in range(3))
+                for i in range(3)
+            )
+            inertia = s.madd(inertia, s.madd(turned, parallel))
+            h = s.vadd(h, s.vadd(s.vscale(m, s.cross(r, mid_vel[k])), s.matvec(turned, spin[k])))
+        return com, com_vel, inertia, h
+
+    def pose(self, angles: Float[ArrayLike, " num_free"] | None = None) -> np.ndarray:
+        """`(num_nodes, 3)` node positions for the free joint angles `angles` (default: the
+        start angles), root as at rest, lowest node on the floor (NumPy; for drawing and
+        checks)."""
+        a = self.start_angles if angles is None else np.asarray(angles, dtype=float)
+        all_angles, rates = self._all_angles([float(x) for x in a])
+        pos, _, _, _ = self._kinematics(all_angles, rates)
+        origin = np.array(self.nodes[self.rods[0][0]])
+        out = np.array([[float(c) for c in p] for p in pos]) + origin
+        out[:, 2] -= out[:, 2].min()
+        return out
+
+    # ------------------------------------------------------------------ state
+
+    def initial_state(self):
+        return self.state()
+
+    def state(
+        self,
+        *,
+        com: Float[ArrayLike, "3"] | None = None,
+        velocity: Float[ArrayLike, "3"] | None = None,
+        orientation: Float[ArrayLike, "4"] | None = None,
+        angular_velocity: Float[ArrayLike, "3"] | None = None,
+        angles: Float[ArrayLike, " num_free"] | None = None,
+        rates: Float[ArrayLike, " num_free"] | None = None,
+    ):
+        """A simulation state `(positions, velocities)`: by default the start pose, at rest,
+        lowest node on the floor.
+
+        **Arguments** (all optional):
+
+        - `com`: centre of mass (world); default above the origin's rest position so the
+            lowest node touches the floor.
+        - `velocity`: velocity of the centre of mass.
+        - `orientation`: the root's orientation relative to the rest pose, a quaternion
+            `(w, x, y, z)`; for a planar figure it must turn about y only.
+        - `angular_velocity`: the root's angular velocity (world frame); it is converted to
+            the angular momentum about the centre of mass, joint rates included.
+        - `angles`, `rates`: free joint angles and their rates.
+
+        The positions are `(com, quaternion, angles)` and the velocities
+        `(com velocity, angular momentum, rates)`; a planar figure keeps only the x and z
+        components of the first two, the w and y of the quaternion and the y component of
+        the angular momentum.
+        """
+        f = self.num_free
+        a = self.start_angles if angles is None else np.asarray(angles, dtype=float).reshape(f)
+        ad = np.zeros(f) if rates is None else np.asarray(rates, dtype=float).reshape(f)
+        q = np.array([1.0, 0, 0, 0]) if orientation is None else np.asarray(orientation, float)
+        q = q / np.linalg.norm(q)
+        all_a, all_r = self._all_angles([float(x) for x in a], [float(x) for x in ad])
+        pos, vel, orient, spin = self._kinematics(all_a, all_r)
+        com_rel, _, inertia, h = self._mass_properties(pos, vel, orient, spin)
+        rot = np.array([[float(x) for x in row] for row in s.quaternion_matrix(tuple(q))])
+        if com is None:
+            rel = np.array([[float(c) for c in p] for p in pos]) - np.array(
+                [float(c) for c in com_rel]
+            )
+            world_rel = rel @ rot.T
+            origin = np.array(self.nodes[self.rods[0][0]]) + np.array([float(c) for c in com_rel])
+            com = np.array([origin[0], origin[1], -world_rel[:, 2].min()])
+        com = np.asarray(com, dtype=float).reshape(3)
+        v = np.zeros(3) if velocity is None else np.asarray(velocity, dtype=float).reshape(3)
+        w = np.zeros(3) if angular_velocity is None else np.asarray(angular_velocity, float)
+        inertia_a = np.array([[float(x) for x in row] for row in inertia])
+        h_a = np.array([float(x) for x in h])
+        # L (world) = R (I w_body + h), w_body = R^T w.
+        momentum = rot @ (inertia_a @ (rot.T @ w) + h_a)
+        if self.planar:
+            bad = (abs(q[1]) > 1e-12 or abs(q[3]) > 1e-12, abs(com[1]) > 0 or abs(v[1]) > 0)
+            if any(bad) or abs(w[0]) > 0 or abs(w[2]) > 0:
+                raise ValueError(
+                    f"{self.name}: a planar figure's state must stay in the x-z plane (turn "
+                    "about y only, no y position or velocity)"
+                )
+            positions = (com[[0, 2]], q[[0, 2]], a)
+            velocities = (v[[0, 2]], momentum[[1]], ad)
+        else:
+            positions = (com, q, a)
+            velocities = (v, momentum, ad)
+        cast = lambda t: tuple(jnp.asarray(x, dtype=float) for x in t)
+        return cast(positions), cast(velocities)
+
+    def dynamics(self) -> "FigureDynamics":
+        return FigureDynamics(self)
+
+
+_BARRIER_BLOCK = 8
+
+
+def _barrier(tree):
+    """Materialise the traced arrays of `tree` here.
+
+    XLA's CPU compiler fuses a whole step of the figure's scalar arithmetic into a few huge
+    loops and copies shared producers (sines, kinematic chains) into each of them; loops that
+    large also stop vectorising. It removes `lax.optimization_barrier` on CPU, but it never
+    fuses through a matrix product: multiplying the values by an identity matrix (exact: each
+    is `1 * x` plus exact zeros) cuts the step into loops of a good size. Measured on Rex at
+    500 controllers per core: 30 us per controller-step without, 3 us with; compile 60 s ->
+    11 s. Blocks of `_BARRIER_BLOCK` values keep the products' cost linear in their number.
+    """
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    arrays = [i for i, x in enumerate(leaves) if not s.const(x)]
+    if not arrays:
+        return tree
+    shape = jnp.broadcast_shapes(*(jnp.shape(leaves[i]) for i in arrays))
+    for start in range(0, len(arrays), _BARRIER_BLOCK):
+        block = arrays[start : start + _BARRIER_BLOCK]
+        stacked = jnp.stack([jnp.broadcast_to(leaves[i], shape) for i in block])
+        eye = jnp.eye(len(block), dtype=stacked.dtype)
+        kept = jnp.dot(
+            eye, stacked.reshape(len(block), -1), precision=jax.lax.Precision.HIGHEST
+        ).reshape(stacked.shape)
+        for k, i in enumerate(block):
+            leaves[i] = kept[k]
+    return jax.tree_util.tree_unflatten(treedef, leaves)
+
+
+def _trig(angles):
+    """`(cos, sin)` of each angle, computed once for all of them."""
+    if not angles:
+        return []
+    stacked = jnp.stack(angles)
+    c, sn = _barrier((jnp.cos(stacked), jnp.sin(stacked)))
+    return [(c[i], sn[i]) for i in range(len(angles))]
+
+
+def _rows(x, n):
+    return [x[i] for i in range(n)]
+
+
+def _broadcast(values, like):
+    return jnp.stack([jnp.broadcast_to(jnp.asarray(v, like.dtype), like.shape) for v in values])
+
+
+class FigureDynamics(AbstractDynamics):
+    """A `Figure` prepared for simulation (the figure itself: its geometry is constant).
+
+    `rates` and `observe` work elementwise over any trailing batch axes.
+
+    **Joint limits.** A joint angle at the end of its range does not move further out: its
+    rate, as the rods see it, is zero while the law's rate points out of the range, and the
+    law keeps acting on that rate, which turns back into the range within about `tau` (the
+    targets always lie inside the range).
+    """
+
+    figure: Figure
+
+    supports_batch_last: ClassVar[bool] = True
+
+    def _unpack(self, positions, velocities=None):
+        fig = self.figure
+        c, q, th = positions
+        if fig.planar:
+            com = (c[0], 0.0, c[1])
+            quat = (q[0], 0.0, q[1], 0.0)
+        else:
+            com = tuple(_rows(c, 3))
+            quat = tuple(_rows(q, 4))
+        angles = _rows(th, fig.num_free)
+        if velocities is None:
+            return com, quat, angles
+        cd, L, thd = velocities
+        if fig.planar:
+            com_vel = (cd[0], 0.0, cd[1])
+            momentum = (0.0, L[0], 0.0)
+        else:
+            com_vel = tuple(_rows(cd, 3))
+            momentum = tuple(_rows(L, 3))
+        return com, quat, angles, com_vel, momentum, _rows(thd, fig.num_free)
+
+    def _limits(self, angles, rates):
+        """Angles clamped to their ranges, the rates the rods see, and the state's angle
+        rates (zero while pushing out of the range)."""
+        kin_angles, kin_rates, state_rates = [], [], []
+        for (lo, hi), a, r in zip(self.figure.ranges, angles, rates, strict=True):
+            lo, hi = float(lo), float(hi)
+            pushing = ((a >= hi) & (r > 0)) | ((a <= lo) & (r < 0))
+            outside = (a > hi) | (a < lo)
+            kin_angles.append(jnp.clip(a, lo, hi))
+            kin_rates.append(jnp.where(pushing | outside, 0.0, r))
+            state_rates.append(jnp.where(pushing, 0.0, r))
+        return kin_angles, kin_rates, state_rates
+
+    def rates(self, state, actuation, world: World):
+        fig = self.figure
+        positions, velocities = state
+        com, quat, angles, com_vel, momentum, rates = self._unpack(positions, velocities)
+        kin_angles, kin_rates, state_rates = self._limits(angles, rates)
+        all_a, all_r = fig._all_angles(_trig(kin_angles), kin_rates)
+        pos, vel, orient, spin = _barrier(fig._kinematics(all_a, all_r))
+        com_rel, com_rel_vel, inertia, h = _barrier(fig._mass_properties(pos, vel, orient, spin))
+        rot = _barrier(s.quaternion_matrix(quat))
+        w_body = _barrier(s.solve_symmetric(inertia, s.vsub(s.tmatvec(rot, momentum), h)))
+        # Contact at every node: world positions and velocities relative to the com.
+        like = positions[0][0]
+        force, torque = s.ZERO, s.ZERO
+        if world.floor:
+            rel = [s.vsub(p, com_rel) for p in pos]
+            rel_vel = [
+                s.vadd(s.cross(w_body, r), s.vsub(v, com_rel_vel))
+                for r, v in zip(rel, vel, strict=True)
+            ]
+            arm = [s.matvec(rot, r) for r in rel]
+            px, py, pz = (_broadcast([s.add(com[i], a[i]) for a in arm], like) for i in range(3))
+            vx, vy, vz = (
+                _broadcast(
+                    [s.add(com_vel[i], x[i]) for x in (s.matvec(rot, rv) for rv in rel_vel)], like
+                )
+                for i in range(3)
+            )
+            fx, fy, fz = floor_force(world, px, py, pz, vx, vy, vz)
+            if fig.planar:
+                fy = jnp.zeros_like(fx)
+            forces = [(fx[i], 0.0 if fig.planar else fy[i], fz[i]) for i in range(fig.num_nodes)]
+            force = tuple(s.total(f[i] for f in forces) for i in range(3))
+            torque = tuple(
+                s.total(t[i] for t in (s.cross(a, f) for a, f in zip(arm, forces, strict=True)))
+                for i in range(3)
+            )
+        m = fig.total_mass
+        acc = (
+            s.mul(1.0 / m, force[0]),
+            s.mul(1.0 / m, force[1]),
+            s.sub(s.mul(1.0 / m, force[2]), world.gravity),
+        )
+        q_rate = s.quaternion_rate(quat, w_body)
+        if actuation is None:
+            angle_acc = [jnp.zeros_like(r) for r in rates]
+        else:
+            target, tau = actuation
+            angle_acc = [
+                (target[i] - angles[i] - 2.0 * tau * rates[i]) / (tau * tau)
+                for i in range(fig.num_free)
+            ]
+        pack = lambda values: _broadcast(values, like)
+        th = positions[2]
+        if fig.planar:
+            d_pos = (pack([com_vel[0], com_vel[2]]), pack([q_rate[0], q_rate[2]]))
+            d_vel = (pack([acc[0], acc[2]]), pack([torque[1]]))
+        else:
+            d_pos = (pack(com_vel), pack(q_rate))
+            d_vel = (pack(acc), pack(torque))
+        if fig.num_free:
+            d_th, d_thd = jnp.stack(state_rates), jnp.stack(angle_acc)
+        else:
+            d_th, d_thd = jnp.zeros_like(th), jnp.zeros_like(th)
+        return (*d_pos, d_th), (*d_vel, d_thd)
+
+    def observe(self, positions, world: World) -> Observation:
+        fig = self.figure
+        com, quat, angles = self._unpack(positions)
+        kin_angles = [
+            jnp.clip(a, float(lo), float(hi))
+            for (lo, hi), a in zip(fig.ranges, angles, strict=True)
+        ]
+        all_a, all_r = fig._all_angles(_trig(kin_angles))
+        pos, vel, orient, spin = fig._kinematics(all_a, all_r)
+        com_rel, _, _, _ = fig._mass_properties(pos, vel, orient, spin)
+        rot = s.quaternion_matrix(quat)
+        like = positions[0][0]
+        points = jnp.stack(
+            [_broadcast(s.vadd(com, s.matvec(rot, s.vsub(p, com_rel))), like) for p in pos]
+        )  # (num_nodes, 3, *batch)
+        frame = s.matmul(rot, fig.frame)
+        frame = jnp.stack([_broadcast(row, like) for row in frame])
+        if world.floor:
+            contact = points[:, 2] < 0
+        else:
+            contact = jnp.zeros((fig.num_nodes, *like.shape), dtype=bool)
+        return Observation(points=points, com=_broadcast(com, like), frame=frame, contact=contact)

@@ -1,0 +1,364 @@
+"""Serial search, the second paper's search (Figure 3): climbers that mutate and keep the
+mutant if it is better, with the worse half reseeded from the better half every few
+generations."""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+from jaxtyping import Array, Float, Int, PRNGKeyArray
+
+from .._control.base import AbstractController
+from .._task import Task
+from .hill_climb import SearchResult, _check_positive_int
+from .history import History
+
+
+class SerialSearchState(eqx.Module):
+    """The whole state of a serial search over one or more independent seeds (one pytree, so
+    it can be checkpointed).
+
+    - `population`: the climbers, stacked along leading axes `(seeds, climbers)`.
+    - `fitness`: their fitness, `(seeds, climbers)`; `-inf` for a controller that blew up.
+    - `key`: one PRNG key per seed, `(seeds,)`; generation `g` of seed `s` draws from
+        `jax.random.fold_in(key[s], g)`.
+    - `generation`: how many generations have been made.
+    - `evaluations`: how many controllers each seed has evaluated, the initial set included.
+
+    Seed `s` of a batched state, `state.seed(s)`, is bitwise the state of that seed run
+    alone.
+    """
+
+    population: AbstractController
+    fitness: Float[Array, "seeds climbers"]
+    key: PRNGKeyArray
+    generation: Int[Array, ""]
+    evaluations: Int[Array, ""]
+
+    @property
+    def num_seeds(self) -> int:
+        """How many independent runs the state holds."""
+        return self.fitness.shape[0]
+
+    def seed(self, s: int) -> "SerialSearchState":
+        """The state of seed number `s` of this batch (the `s`-th along the leading axis),
+        with a seeds axis of length 1: the state a run of that seed alone would have."""
+        return eqx.tree_at(
+            lambda st: (st.population, st.fitness, st.key),
+            self,
+            jax.tree_util.tree_map(
+                lambda a: a[s : s + 1], (self.population, self.fitness, self.key)
+            ),
+        )
+
+
+def _check_seed_offset(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+        raise ValueError(f"seed_offset = {value!r}; allowed: an integer >= 0")
+    return int(value)
+
+
+class SerialSearch(eqx.Module):
+    """Serial search (second paper, Figure 3), as pure init / ask / tell functions.
+
+    Each of `climbers` controllers is mutated once per generation (the family's `perturb`),
+    and the mutant replaces it only if its fitness is strictly greater, so a climber's
+    fitness never decreases and a blown-up mutant (`-inf`) is never kept. After every
+    `reseed_every`-th generation the set is ranked by fitness (stably: ties keep the lower
+    index first) and the worse `climbers // 2` are replaced by copies of the best
+    `climbers // 2`, fitness included (no re-evaluation): the state then lists the ranked
+    set, best first, followed by the copies in the same order. Fitness is maximised.
+
+    Several independent runs (seeds) are searched at once: their climbers form one batch of
+    `seeds * climbers` controllers, seed-major, which `ask` returns and `tell` takes, so each
+    generation is one `task.evaluate` call. The initial set is evaluated in one call of the
+    same width, so the simulation compiles once. Seed `s` is driven by
+    `jax.random.fold_in(key, s)` alone, and evaluation is independent of the batch, so a
+    seed gives bitwise the same search whether run alone or among others.
+
+    `ask` and `tell` are jitted; `step` composes ask, `task.evaluate` and tell.
+
+    **Arguments:**
+
+    - `climbers`: controllers per seed (the paper's C = 10).
+    - `reseed_every`: generations between reseedings (the paper's R = 200).
+    """
+
+    climbers: int = eqx.field(static=True)
+    reseed_every: int = eqx.field(static=True)
+
+    def __init__(self, climbers: int = 10, reseed_every: int = 200):
+        self.climbers = _check_positive_int("climbers", climbers)
+        self.reseed_every = _check_positive_int("reseed_every", reseed_every)
+
+    def init(
+        self, task: Task, *, key: PRNGKeyArray, seeds: int = 1, seed_offset: int = 0
+    ) -> tuple[SerialSearchState, Float[Array, "seeds climbers"]]:
+        """Draw and evaluate the initial climbers of seeds `seed_offset, ...,
+        seed_offset + seeds - 1`; seed `s` draws from `jax.random.fold_in(key, s)`.
+
+        **Returns:** the state and the fitness of the initial climbers, `(seeds, climbers)`.
+        """
+        seeds = _check_positive_int("seeds", seeds)
+        seed_offset = _check_seed_offset(seed_offset)
+        population, keys = _sample(task, key, jnp.arange(seeds) + seed_offset, self.climbers)
+        fitness = task.evaluate(population)
+        state = _start(population, fitness, keys)
+        return state, state.fitness
+
+    def ask(self, task: Task, state: SerialSearchState) -> AbstractController:
+        """This generation's mutant of every climber: `seeds * climbers` controllers along
+        one leading axis, seed-major (ready for `task.evaluate`)."""
+        return _ask(task, state)
+
+    def tell(
+        self,
+        state: SerialSearchState,
+        mutants: AbstractController,
+        fitness: Float[Array, " batch"],
+    ) -> SerialSearchState:
+        """Replace every climber whose mutant has strictly greater fitness (NaN and `-inf`
+        never do), then reseed if this generation is a multiple of `reseed_every`.
+        `mutants` and `fitness` are seed-major along one axis of `seeds * climbers`, as `ask`
+        and `task.evaluate` give them; `fitness` may also come shaped `(seeds, climbers)`."""
+        return _tell(state, mutants, fitness, jnp.asarray(self.reseed_every, dtype=jnp.int32))
+
+    def step(
+        self, task: Task, state: SerialSearchState
+    ) -> tuple[SerialSearchState, Float[Array, "seeds climbers"]]:
+        """ask, evaluate, tell. Returns the new state and the fitness of this generation's
+        mutants, `(seeds, climbers)`."""
+        mutants = self.ask(task, state)
+        fitness = task.evaluate(mutants)
+        return self.tell(state, mutants, fitness), fitness.reshape(state.fitness.shape)
+
+
+def _flat(tree):
+    return jax.tree_util.tree_map(lambda a: a.reshape(-1, *a.shape[2:]), tree)
+
+
+def _per_seed(tree, seeds: int):
+    return jax.tree_util.tree_map(lambda a: a.reshape(seeds, -1, *a.shape[1:]), tree)
+
+
+# The jitted steps take the climbers from the state's shape and `reseed_every` as an array,
+# so searches that differ only in `reseed_every` share their compilations.
+
+
+@eqx.filter_jit
+def _sample(task: Task, key, seeds, climbers: int):
+    def one(s):
+        sample_key, run_key = jr.split(jr.fold_in(key, s))
+        return task.sample(climbers, key=sample_key), run_key
+
+    population, keys = jax.vmap(one)(seeds)
+    return _flat(population), keys
+
+
+@eqx.filter_jit
+def _start(population, fitness, keys) -> SerialSearchState:
+    seeds = keys.shape[0]
+    fitness = fitness.reshape(seeds, -1)
+    return SerialSearchState(
+        population=_per_seed(population, seeds),
+        # A NaN must never enter the set: it would compare false against everything.
+        fitness=jnp.where(jnp.isnan(fitness), -jnp.inf, fitness),
+        key=keys,
+        generation=jnp.asarray(0, dtype=jnp.int32),
+        evaluations=jnp.asarray(fitness.shape[1], dtype=jnp.int32),
+    )
+
+
+@eqx.filter_jit
+def _ask(task: Task, state: SerialSearchState):
+    def one(population, key):
+        keys = jr.split(jr.fold_in(key, state.generation + 1), state.fitness.shape[1])
+        return jax.vmap(lambda p, k: task.space.perturb(p, key=k))(population, keys)
+
+    return _flat(jax.vmap(one)(state.population, state.key))
+
+
+def _select(mask, new, old):
+    """Per climber (leading axes `mask.shape`), `new` where `mask` holds, else `old`."""
+    return jnp.where(mask.reshape(mask.shape + (1,) * (new.ndim - mask.ndim)), new, old)
+
+
+def _reseeded(population, fitness, half: int):
+    """One seed's climbers ranked (stably, best first), the worse `half` replaced by copies
+    of the best `half`."""
+    size = fitness.shape[0]
+    order = jnp.argsort(-fitness, stable=True)
+    rank = jnp.arange(size)
+    source = order[jnp.where(rank < size - half, rank, rank - (size - half))]
+    return jax.tree_util.tree_map(lambda a: a[source], population), fitness[source]
+
+
+@eqx.filter_jit
+def _tell(state: SerialSearchState, mutants, fitness, reseed_every):
+    seeds, climbers = state.fitness.shape
+    mutants = _per_seed(mutants, seeds)
+    fitness = fitness.reshape(state.fitness.shape)
+    # Strictly greater: ties keep the incumbent, and NaN or -inf is never kept.
+    better = fitness > state.fitness
+    population = jax.tree_util.tree_map(
+        lambda new, old: _select(better, new, old), mutants, state.population
+    )
+    fitness = jnp.where(better, fitness, state.fitness)
+    generation = state.generation + 1
+    reseed = generation % reseed_every == 0
+    population, fitness = jax.lax.cond(
+        reseed,
+        lambda p, f: jax.vmap(lambda p1, f1: _reseeded(p1, f1, climbers // 2))(p, f),
+        lambda p, f: (p, f),
+        population,
+        fitness,
+    )
+    return SerialSearchState(
+        population=population,
+        fitness=fitness,
+        key=state.key,
+        generation=generation,
+        evaluations=state.evaluations + climbers,
+    )
+
+
+@eqx.filter_jit
+def _split(state: SerialSearchState):
+    """Every seed's best climber (the first on ties) and its fitness, and every seed's
+    state, in one compiled call (indexing seed by seed would compile one slice per seed)."""
+    seeds = state.num_seeds
+    index = jnp.argmax(state.fitness, axis=1)
+    bests = tuple(
+        jax.tree_util.tree_map(lambda a, s=s: a[s, index[s]], state.population)
+        for s in range(seeds)
+    )
+    best_fitness = state.fitness[jnp.arange(seeds), index]
+    return bests, best_fitness, tuple(state.seed(s) for s in range(seeds))
+
+
+@dataclass(frozen=True)
+class SerialSearchResult(SearchResult):
+    """What `serial_search` returns: a `SearchResult` for the best seed, and one per seed.
+
+    - `best`: the best controller over all seeds (unbatched), the lowest seed on ties.
+    - `best_fitness`: its fitness (maximised).
+    - `history`: the `History` of the seed that found it.
+    - `state`: the final `SerialSearchState` of all seeds (resume or inspect it).
+    - `seed`: which seed found `best` (its number, `seed_offset` included).
+    - `runs`: one `SearchResult` per seed, in order: that seed's best controller, its
+        fitness, its `History`, and its state (`state.seed(i)`, bitwise the state of the
+        same seed run alone).
+
+    With `seeds=1` the top-level fields are that seed's.
+    """
+
+    seed: int
+    runs: tuple[SearchResult, ...]
+
+
+def serial_search(
+    task: Task,
+    *,
+    key: PRNGKeyArray,
+    seeds: int = 1,
+    seed_offset: int = 0,
+    climbers: int = 10,
+    generations: int = 4000,
+    reseed_every: int = 200,
+    progress: bool = False,
+    callback: Callable[[SerialSearchState, tuple[History, ...]], None] | None = None,
+) -> SerialSearchResult:
+    """Serial search (second paper, Figure 3) on `task`; fitness is maximised.
+
+    Start from `climbers` random controllers; every generation mutate each one and keep the
+    mutant if it is strictly better; every `reseed_every` generations replace the worse half
+    by copies of the better half (see `SerialSearch`). The paper's settings (the defaults)
+    make 10 + 40,000 simulations per seed.
+
+    Independent seeds run together, every generation evaluated in one call of
+    `seeds * climbers` controllers. Seed `s` draws from `jax.random.fold_in(key, s)` only,
+    so seed `s` of a batched run is bitwise the run
+    `serial_search(task, key=key, seed_offset=s)`.
+
+    **Arguments:**
+
+    - `task`: what to optimise.
+    - `key`: the PRNG key (the same key gives the same search).
+    - `seeds`: independent runs, searched together.
+    - `seed_offset`: the number of the first seed: the run searches seeds
+        `seed_offset, ..., seed_offset + seeds - 1`.
+    - `climbers`: controllers per seed (the paper's C = 10).
+    - `generations`: generations (the paper's G = 4000); each evaluates one mutant per
+        climber.
+    - `reseed_every`: generations between reseedings (the paper's R = 200).
+    - `progress`: show a tqdm progress bar (off by default: the library does not print).
+    - `callback`: called after the initial evaluation and after every generation with the
+        state and that generation's evaluations, one `History` per seed.
+
+    **Returns:** a `SerialSearchResult`; every seed's history has
+    `climbers * (generations + 1)` entries, step 0 being the initial climbers and step `g`
+    generation `g`.
+
+    **Raises:** `ValueError` for a setting that is not a positive integer (`seed_offset`: a
+    non-negative one), before anything compiles.
+    """
+    seeds = _check_positive_int("seeds", seeds)
+    seed_offset = _check_seed_offset(seed_offset)
+    generations = _check_positive_int("generations", generations)
+    search = SerialSearch(climbers=climbers, reseed_every=reseed_every)
+
+    state, initial = search.init(task, key=key, seeds=seeds, seed_offset=seed_offset)
+    parts = [np.asarray(initial)]
+
+    def report(state: SerialSearchState, part: np.ndarray, g: int):
+        if callback is not None:
+            steps = np.full(search.climbers, g)
+            callback(state, tuple(History(f, steps) for f in part))
+
+    report(state, parts[0], 0)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=generations, unit="gen", desc="serial search")
+    try:
+        best = float(np.max(parts[0]))
+        for g in range(1, generations + 1):
+            state, fitness = search.step(task, state)
+            part = np.asarray(fitness)
+            parts.append(part)
+            report(state, part, g)
+            if bar is not None:
+                best = max(best, float(np.max(part)))
+                bar.update(1)
+                bar.set_postfix(best=f"{best:.4g}", refresh=False)
+    finally:
+        if bar is not None:
+            bar.close()
+
+    # (generations + 1, seeds, climbers) -> per seed, in evaluation order.
+    table = np.stack(parts)
+    steps = np.repeat(np.arange(generations + 1), search.climbers)
+    bests, best_fitness, states = _split(state)
+    runs = [
+        SearchResult(
+            best=bests[i],
+            best_fitness=float(best_fitness[i]),
+            history=History(table[:, i, :].reshape(-1), steps),
+            state=states[i],
+        )
+        for i in range(seeds)
+    ]
+    winner = int(np.argmax([r.best_fitness for r in runs]))
+    return SerialSearchResult(
+        best=runs[winner].best,
+        best_fitness=runs[winner].best_fitness,
+        history=runs[winner].history,
+        state=state,
+        seed=seed_offset + winner,
+        runs=tuple(runs),
+    )
