@@ -8,6 +8,7 @@ import numpy as np
 from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
 from matplotlib.figure import Figure
 
+from .._body.figure import Figure as ArticulatedFigure
 from .._body.lattice import Lattice
 from .._sim.trajectory import Trajectory
 from . import scene
@@ -178,7 +179,7 @@ def frame_indices(ts: np.ndarray, fps: float) -> np.ndarray:
 
 def animate(
     trajectory: Trajectory,
-    body: Lattice | None = None,
+    body: Lattice | ArticulatedFigure | None = None,
     *,
     fps: float = 25.0,
     figsize: tuple[float, float] = (5.0, 4.0),
@@ -197,7 +198,8 @@ def animate(
     **Arguments:**
 
     - `trajectory`: one (unbatched) `Trajectory`, e.g. from `task.simulate(controller)`.
-    - `body`: the `Lattice` that was simulated, to draw its springs; `None` draws the points
+    - `body`: the `Lattice` or `Figure` that was simulated, to draw its springs or rods;
+        `None` draws the points
         only.
     - `fps`: frames per second of simulated time.
     - `figsize`, `dpi`: size of the figure in inches and its resolution (pixels per inch).

@@ -4,6 +4,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from .._body.figure import Figure as ArticulatedFigure
 from .._body.lattice import Lattice
 from .._sim.trajectory import Trajectory
 from . import scene
@@ -12,7 +13,7 @@ from . import scene
 def filmstrip(
     trajectory: Trajectory,
     n: int = 6,
-    body: Lattice | None = None,
+    body: Lattice | ArticulatedFigure | None = None,
     *,
     panel_size: float = 2.5,
     elev: float = 20.0,
@@ -32,7 +33,8 @@ def filmstrip(
 
     - `trajectory`: one (unbatched) `Trajectory`.
     - `n`: how many poses; the first is at the start and the last at the end.
-    - `body`: the `Lattice` that was simulated, to draw its springs; `None` draws the points
+    - `body`: the `Lattice` or `Figure` that was simulated, to draw its springs or rods;
+        `None` draws the points
         only.
     - `panel_size`: width and height of each panel, inches.
     - `elev`, `azim`: viewing angles in degrees (as `Axes3D.view_init`).

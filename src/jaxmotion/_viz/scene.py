@@ -8,6 +8,7 @@ from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d import Axes3D
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
+from .._body.figure import Figure
 from .._body.lattice import Lattice
 from .._sim.trajectory import Trajectory
 
@@ -36,7 +37,7 @@ class Motion:
         return bool(np.all(np.isfinite(self.points[i])) and np.all(np.isfinite(self.com[i])))
 
 
-def motion(trajectory: Trajectory, body: Lattice | None, *, caller: str) -> Motion:
+def motion(trajectory: Trajectory, body: Lattice | Figure | None, *, caller: str) -> Motion:
     """Check one unbatched trajectory (and its body) and convert it to numpy."""
     if not isinstance(trajectory, Trajectory):
         raise TypeError(f"{caller} needs a jaxmotion Trajectory; got {type(trajectory).__name__}")
@@ -75,20 +76,25 @@ def motion(trajectory: Trajectory, body: Lattice | None, *, caller: str) -> Moti
     )
 
 
-def _springs(body: Lattice | None, num_points: int, *, caller: str) -> np.ndarray:
+def _springs(body: Lattice | Figure | None, num_points: int, *, caller: str) -> np.ndarray:
+    """The segments to draw between points: a lattice's springs or a figure's rods."""
     if body is None:
         return np.zeros((0, 2), dtype=int)
-    if not isinstance(body, Lattice):
+    if isinstance(body, Lattice):
+        segments, what = np.asarray(body.springs, dtype=int), "masses"
+    elif isinstance(body, Figure):
+        segments, what = np.asarray(body.rods, dtype=int), "nodes"
+    else:
         raise TypeError(
-            f"{caller} draws the springs of a Lattice; got body of type "
-            f"{type(body).__name__}. Pass body=None to draw the points only"
+            f"{caller} draws the springs of a Lattice or the rods of a Figure; got body of "
+            f"type {type(body).__name__}. Pass body=None to draw the points only"
         )
-    if body.num_masses != num_points:
+    if body.num_points != num_points:
         raise ValueError(
-            f"{caller}: body {body.name!r} has {body.num_masses} masses but the trajectory "
+            f"{caller}: body {body.name!r} has {body.num_points} {what} but the trajectory "
             f"has {num_points} points; pass the body that was simulated"
         )
-    return np.asarray(body.springs, dtype=int).reshape(-1, 2)
+    return segments.reshape(-1, 2)
 
 
 @dataclass(frozen=True)
