@@ -1,9 +1,11 @@
-"""Reproduction checks: does a motion really leap, somersault or pirouette?
+"""Reproduction checks: does a motion really leap, somersault, pirouette, shuffle, cartwheel
+or bound?
 
 Each check is a function of one (unbatched) `Trajectory` with documented thresholds, and
 returns a `CheckResult` that says which criteria held and what was measured. They encode the
 first paper's Figures 7-9 (the spider's leap, the poodle's somersault, the table's pirouette)
-as numbers a user can test their own results against.
+and the second paper's Figures 9, 10 and 15 (Star-Man's shuffle and cartwheel, Cujo's
+bounding) as numbers a user can test their own results against.
 """
 
 import math
@@ -11,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._objective.terms import net_yaw, rotation
+from ._objective.terms import net_yaw, rotation, rotations
 from ._sim.trajectory import Trajectory
 
 
@@ -207,4 +209,106 @@ def pirouette(
     return _result("pirouette", t["finite"], figures, criteria)
 
 
-CHECKS = {"leap": leap, "somersault": somersault, "pirouette": pirouette}
+def _airborne_phases(t: dict) -> int:
+    """How many separate stretches of saved instants have no point on the floor (the start,
+    resting on the floor, is not one)."""
+    airborne = ~np.any(t["contact"], axis=1)
+    airborne[0] = False
+    return int(np.sum(airborne[1:] & ~airborne[:-1]))
+
+
+def shuffle(trajectory: Trajectory, *, body_length: float, min_lengths: float = 1.0) -> CheckResult:
+    """Star-Man's shuffle (second paper, Figure 9): travels forward with some point always on
+    the floor.
+
+    Passes when the centre of mass travels forward at least `min_lengths` body lengths and at
+    every saved instant after the start at least one point touches the floor.
+    """
+    t = _single(trajectory, "shuffle")
+    body_length = _positive("body_length", body_length)
+    lengths = _forward(t) / body_length
+    # The start is skipped: resting exactly on the floor (z = 0) is not contact yet.
+    grounded = np.any(t["contact"][1:], axis=1)
+    share = float(np.mean(grounded))
+    figures = {
+        "forward_body_lengths": lengths,
+        "forward_m": lengths * body_length,
+        "grounded_share": share,
+    }
+    criteria = {
+        f"travels forward >= {min_lengths:g} body lengths (got {lengths:.2f})": lengths
+        >= min_lengths,
+        f"some point always on the floor (got {100 * share:.1f}% of instants)": bool(
+            np.all(grounded)
+        ),
+    }
+    return _result("shuffle", t["finite"], figures, criteria)
+
+
+def cartwheel(
+    trajectory: Trajectory,
+    *,
+    body_length: float,
+    min_turns: float = 1.0,
+    min_lengths: float = 0.5,
+) -> CheckResult:
+    """Star-Man's cartwheel (second paper, Figure 10): turns over about the lateral axis
+    while travelling forward.
+
+    Passes when the body frame turns at least `min_turns` full turns (net, either way) about
+    its left (lateral) axis and the centre of mass travels forward at least `min_lengths`
+    body lengths.
+    """
+    t = _single(trajectory, "cartwheel")
+    body_length = _positive("body_length", body_length)
+    turns = float(rotations(trajectory))
+    lengths = _forward(t) / body_length
+    figures = {"turns": turns, "forward_body_lengths": lengths, "forward_m": lengths * body_length}
+    criteria = {
+        f"turns >= {min_turns:g} times about the lateral axis (got {turns:.2f})": turns
+        >= min_turns,
+        f"travels forward >= {min_lengths:g} body lengths (got {lengths:.2f})": lengths
+        >= min_lengths,
+    }
+    return _result("cartwheel", t["finite"], figures, criteria)
+
+
+def bound(
+    trajectory: Trajectory,
+    *,
+    body_length: float,
+    min_lengths: float = 2.0,
+    min_airborne_phases: int = 2,
+) -> CheckResult:
+    """Cujo's bounding (second paper, Figure 15): travels forward by leaps.
+
+    Passes when the centre of mass travels forward at least `min_lengths` body lengths and
+    the body leaves the floor entirely (no point touching it) in at least
+    `min_airborne_phases` separate phases.
+    """
+    t = _single(trajectory, "bound")
+    body_length = _positive("body_length", body_length)
+    lengths = _forward(t) / body_length
+    phases = _airborne_phases(t)
+    figures = {
+        "forward_body_lengths": lengths,
+        "forward_m": lengths * body_length,
+        "airborne_phases": float(phases),
+    }
+    criteria = {
+        f"travels forward >= {min_lengths:g} body lengths (got {lengths:.2f})": lengths
+        >= min_lengths,
+        f"airborne in >= {min_airborne_phases} phases (got {phases})": phases
+        >= min_airborne_phases,
+    }
+    return _result("bound", t["finite"], figures, criteria)
+
+
+CHECKS = {
+    "leap": leap,
+    "somersault": somersault,
+    "pirouette": pirouette,
+    "shuffle": shuffle,
+    "cartwheel": cartwheel,
+    "bound": bound,
+}

@@ -1,10 +1,23 @@
-"""Motion checks: `leap`, `somersault`, `pirouette`, each a function of a Trajectory that
-returns a `CheckResult` (see each function for its thresholds)."""
+"""Motion checks: `leap`, `somersault`, `pirouette` (first paper) and `shuffle`,
+`cartwheel`, `bound` (second paper), each a function of a Trajectory that returns a
+`CheckResult` (see each function for its thresholds)."""
 
 from ._checks import CHECKS as CHECKS
 from ._checks import CheckResult as CheckResult
+from ._checks import bound as bound
+from ._checks import cartwheel as cartwheel
 from ._checks import leap as leap
 from ._checks import pirouette as pirouette
+from ._checks import shuffle as shuffle
 from ._checks import somersault as somersault
 
-__all__ = ["CHECKS", "CheckResult", "leap", "pirouette", "somersault"]
+__all__ = [
+    "CHECKS",
+    "CheckResult",
+    "bound",
+    "cartwheel",
+    "leap",
+    "pirouette",
+    "shuffle",
+    "somersault",
+]

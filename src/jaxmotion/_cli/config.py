@@ -12,8 +12,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .. import lattices
+from .. import figures, lattices
 from .._control.regimes import RegimesSpace
+from .._control.time_bsr import TimeBSRSpace
 from .._objective.registry import Objective
 from .._sim.simulate import time_grid
 from .._task import Task
@@ -118,6 +119,8 @@ def _read_section(where: str, table: Any, schema: Mapping[str, Key]) -> dict[str
 
 # ----------------------------------------------------------------------------------- bodies
 
+FAMILY_KEYS = ("lattice", "figure")
+
 LATTICE_BUILDERS: dict[str, Callable] = {
     "cube": lattices.cube,
     "pyramid": lattices.pyramid,
@@ -132,7 +135,29 @@ def _builder_schema(builder: Callable) -> dict[str, Key]:
     return schema
 
 
-def _body_schema(table: Mapping) -> tuple[dict[str, Key], Callable]:
+FIGURE_BUILDERS: dict[str, Callable] = {
+    "star_man": figures.star_man,
+    "beryl_biped": figures.beryl_biped,
+    "cujo": figures.cujo,
+    "rex": figures.rex,
+    "bob": figures.bob,
+}
+
+
+def _body_schema(table: Mapping) -> tuple[dict[str, Key], Callable, str]:
+    """The [body] schema: `lattice = NAME` (and the builder's sizes) or `figure = NAME`."""
+    if isinstance(table, Mapping) and "figure" in table:
+        if "lattice" in table:
+            raise ConfigError(
+                "[body] names both a lattice and a figure; allowed: one of `lattice = ...` "
+                "or `figure = ...`"
+            )
+        kind = table["figure"]
+        if kind not in FIGURE_BUILDERS:
+            raise ConfigError(
+                f"[body] figure = {kind!r}; allowed: one of {', '.join(map(repr, FIGURE_BUILDERS))}"
+            )
+        return {"figure": Key("string", _REQUIRED)}, FIGURE_BUILDERS[kind], "figure"
     kind = table.get("lattice", "cube") if isinstance(table, Mapping) else None
     if kind not in LATTICE_BUILDERS:
         raise ConfigError(
@@ -141,7 +166,7 @@ def _body_schema(table: Mapping) -> tuple[dict[str, Key], Callable]:
     builder = LATTICE_BUILDERS[kind]
     schema = {"lattice": Key("string", "cube")}
     schema.update(_builder_schema(builder))
-    return schema, builder
+    return schema, builder, "lattice"
 
 
 # ---------------------------------------------------------------------------- the sections
@@ -160,7 +185,7 @@ WORLD = {
 }
 
 CONTROLLER = {
-    "family": Key("string", "regimes", lambda v: v == "regimes", '"regimes"'),
+    "family": Key("string", "regimes", lambda v: v == "regimes", '"regimes" (for a lattice)'),
     "num_regimes": Key("integer", 4, lambda v: v >= 1, ">= 1"),
     "t_per": Key("number", 1.0, _positive, "> 0 (s)"),
     "amplitudes": Key(
@@ -172,6 +197,34 @@ CONTROLLER = {
     ),
 }
 
+TIME_BSR = {
+    "family": Key("string", "time_bsr", lambda v: v == "time_bsr", '"time_bsr" (for a figure)'),
+    "num_rules": Key("integer", 4, lambda v: v >= 1, ">= 1"),
+    "t_per": Key("number", 1.0, _positive, "> 0 (s)"),
+    "tau_min": Key("number", None, _positive, "> 0 (s; default 2 dt, the second paper's)"),
+    "tau_max": Key("number", None, _positive, "> 0 (s; default duration / 4)"),
+    "creep": Key("number", 0.1, lambda v: 0 < v <= 1, "in (0, 1]"),
+    "reinit_probability": Key("number", 1 / 3, lambda v: 0 <= v <= 1, "in [0, 1]"),
+}
+
+FAMILIES = {"lattice": ("regimes", CONTROLLER), "figure": ("time_bsr", TIME_BSR)}
+
+
+def _controller_schema(table: Any, body_kind: str) -> dict[str, Key]:
+    family, schema = FAMILIES[body_kind]
+    given = table.get("family", family) if isinstance(table, Mapping) else family
+    if given != family:
+        known = {f for f, _ in FAMILIES.values()}
+        what = "an articulated figure" if body_kind == "figure" else "a mass-spring lattice"
+        if given in known:
+            raise ConfigError(
+                f"[controller] family = {given!r} does not control {what}; allowed: "
+                f"family = {family!r} for the [body] given"
+            )
+        raise ConfigError(f"[controller] family = {given!r}; allowed: {family!r} for {what}")
+    return schema
+
+
 SIMULATION = {
     "duration": Key("number", _REQUIRED, _positive, "> 0 (s)"),
     "dt": Key("number", 1e-3, _positive, "> 0 (s)"),
@@ -182,13 +235,42 @@ SEARCH = {
     "algorithm": Key(
         "string",
         "parallel_hill_climb",
-        lambda v: v == "parallel_hill_climb",
-        '"parallel_hill_climb"',
+        lambda v: v in SEARCHES,
+        '"parallel_hill_climb" or "serial_search"',
     ),
     "evaluations": Key("integer", 25_000, lambda v: v >= 1, ">= 1"),
     "size": Key("integer", 100, lambda v: v >= 1, ">= 1"),
     "batch": Key("integer", 1, lambda v: v >= 1, ">= 1"),
 }
+
+SERIAL_SEARCH = {
+    "algorithm": SEARCH["algorithm"],
+    "climbers": Key("integer", 10, lambda v: v >= 1, ">= 1 (the second paper: C = 10)"),
+    "generations": Key("integer", 4000, lambda v: v >= 1, ">= 1 (G = 4,000)"),
+    "reseed_every": Key("integer", 200, lambda v: v >= 1, ">= 1 (R = 200)"),
+    "runs": Key(
+        "integer", 1, lambda v: v >= 1, ">= 1 (independent runs batched together; best kept)"
+    ),
+}
+
+SEARCHES = {"parallel_hill_climb": SEARCH, "serial_search": SERIAL_SEARCH}
+
+
+def _search_schema(table: Any) -> dict[str, Key]:
+    algorithm = (
+        table.get("algorithm", "parallel_hill_climb")
+        if isinstance(table, Mapping)
+        else "parallel_hill_climb"
+    )
+    return SEARCHES.get(algorithm, SEARCH)
+
+
+def search_evaluations(search: Mapping[str, Any]) -> int:
+    """How many simulations a checked [search] section asks for (initial sets included)."""
+    if search["algorithm"] == "serial_search":
+        return search["runs"] * search["climbers"] * (search["generations"] + 1)
+    return search["size"] + search["evaluations"]
+
 
 OUTPUT = {
     "directory": Key("string", "results", lambda v: bool(v.strip()), "(not empty)"),
@@ -200,8 +282,8 @@ CHECK = {
     "motion": Key(
         "string",
         _REQUIRED,
-        lambda v: v in ("leap", "somersault", "pirouette"),
-        '"leap", "somersault" or "pirouette"',
+        lambda v: v in ("leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound"),
+        '"leap", "somersault", "pirouette", "shuffle", "cartwheel" or "bound"',
     ),
 }
 
@@ -267,10 +349,13 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
     resolved: dict[str, Any] = dict(head)
 
     body_table = raw.get("body", {})
-    body_schema, builder = _body_schema(body_table)
+    body_schema, builder, body_kind = _body_schema(body_table)
     body_cfg = _read_section("[body]", body_table, body_schema)
     world_cfg = _read_section("[world]", raw.get("world", {}), WORLD)
-    controller_cfg = _read_section("[controller]", raw.get("controller", {}), CONTROLLER)
+    controller_table = raw.get("controller", {})
+    controller_cfg = _read_section(
+        "[controller]", controller_table, _controller_schema(controller_table, body_kind)
+    )
     if "objective" not in raw:
         raise ConfigError("the config has no [objective] section (e.g. forward = 1.0)")
     objective_raw = raw["objective"]
@@ -279,7 +364,8 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
     if "simulation" not in raw:
         raise ConfigError("the config has no [simulation] section (duration = ... is required)")
     simulation_cfg = _read_section("[simulation]", raw["simulation"], SIMULATION)
-    search_cfg = _read_section("[search]", raw.get("search", {}), SEARCH)
+    search_table = raw.get("search", {})
+    search_cfg = _read_section("[search]", search_table, _search_schema(search_table))
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
     check_cfg = _read_section("[check]", raw["check"], CHECK) if "check" in raw else None
 
@@ -289,21 +375,39 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
         except ValueError as e:
             raise ConfigError(f"[{section}] {e}") from None
 
-    body = build("body", lambda: builder(**{k: v for k, v in body_cfg.items() if k != "lattice"}))
+    body = build(
+        "body", lambda: builder(**{k: v for k, v in body_cfg.items() if k not in FAMILY_KEYS})
+    )
     world = build(
         "world",
         lambda: World(
             **{k: (tuple(v) if k == "friction_direction" else v) for k, v in world_cfg.items()}
         ),
     )
-    space = build(
-        "controller",
-        lambda: RegimesSpace(
-            num_regimes=controller_cfg["num_regimes"],
-            t_per=controller_cfg["t_per"],
-            amplitudes=tuple(controller_cfg["amplitudes"]),
-        ),
-    )
+    if body_kind == "figure":
+        controller_cfg.setdefault("tau_min", 2 * simulation_cfg["dt"])
+        controller_cfg.setdefault("tau_max", simulation_cfg["duration"] / 4)
+        space = build(
+            "controller",
+            lambda: TimeBSRSpace(
+                body,
+                num_rules=controller_cfg["num_rules"],
+                t_per=controller_cfg["t_per"],
+                tau_min=controller_cfg["tau_min"],
+                tau_max=controller_cfg["tau_max"],
+                creep=controller_cfg["creep"],
+                reinit_probability=controller_cfg["reinit_probability"],
+            ),
+        )
+    else:
+        space = build(
+            "controller",
+            lambda: RegimesSpace(
+                num_regimes=controller_cfg["num_regimes"],
+                t_per=controller_cfg["t_per"],
+                amplitudes=tuple(controller_cfg["amplitudes"]),
+            ),
+        )
     objective = build("objective", lambda: Objective(dict(objective_raw)))
     build(
         "simulation",

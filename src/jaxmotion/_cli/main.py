@@ -36,6 +36,11 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("--seed", type=int, help="override the config's seed")
         q.add_argument("--evaluations", type=int, help="override [search] evaluations")
         q.add_argument("--batch", type=int, help="override [search] batch")
+        q.add_argument(
+            "--runs",
+            type=int,
+            help="override [search] runs (serial_search: independent runs batched together)",
+        )
         q.add_argument("--no-animation", action="store_true", help="do not write motion.gif")
         q.add_argument("--quiet", action="store_true", help="no progress bar or summary")
 
@@ -89,10 +94,35 @@ def _overrides(raw: dict, args) -> dict:
     if args.seed is not None:
         raw["seed"] = args.seed
     search = raw.setdefault("search", {})
+    serial = isinstance(search, dict) and search.get("algorithm") == "serial_search"
     if args.evaluations is not None:
-        search["evaluations"] = args.evaluations
+        if serial:
+            # Serial search counts generations: each evaluates every climber once.
+            from .config import ConfigError
+
+            climbers = search.get("climbers", 10)
+            if not isinstance(climbers, int) or isinstance(climbers, bool) or climbers < 1:
+                raise ConfigError(f"[search] climbers = {climbers!r}; allowed: an integer >= 1")
+            if args.evaluations < 1:
+                raise ConfigError(f"--evaluations = {args.evaluations}; allowed: >= 1")
+            search["generations"] = max(1, -(-args.evaluations // climbers))
+        else:
+            search["evaluations"] = args.evaluations
     if args.batch is not None:
+        if serial:
+            from .config import ConfigError
+
+            raise ConfigError(
+                "--batch applies to parallel_hill_climb; serial_search evaluates all its "
+                "climbers (and runs) in one batch"
+            )
         search["batch"] = args.batch
+    if getattr(args, "runs", None) is not None:
+        if not serial:
+            from .config import ConfigError
+
+            raise ConfigError('--runs applies to [search] algorithm = "serial_search"')
+        search["runs"] = args.runs
     return raw
 
 
@@ -120,11 +150,14 @@ def _run(path: Path, args) -> int:
 
     if not args.quiet:
         s = experiment.search
-        print(
-            f"jaxmotion: {experiment.name}: {s['evaluations']} evaluations, "
-            f"search set {s['size']}, batch {s['batch']}, seed {experiment.seed}",
-            file=sys.stderr,
-        )
+        if s["algorithm"] == "serial_search":
+            plan = (
+                f"serial search, {s['climbers']} climbers x {s['generations']} generations"
+                f" x {s['runs']} runs, reseeding every {s['reseed_every']}"
+            )
+        else:
+            plan = f"{s['evaluations']} evaluations, search set {s['size']}, batch {s['batch']}"
+        print(f"jaxmotion: {experiment.name}: {plan}, seed {experiment.seed}", file=sys.stderr)
     folder = run_experiment(
         experiment,
         directory=args.out,
@@ -155,6 +188,14 @@ def _run(path: Path, args) -> int:
             ]
             verdict = "passed" if check["passed"] else "failed"
             print(f"{check['name']} check {verdict}:\n" + "\n".join(lines), file=sys.stderr)
+        if summary.get("runs"):
+            checked = [r for r in summary["runs"] if r["check"] is not None]
+            fits = ", ".join(f"{r['best_fitness']:.4g}" for r in summary["runs"])
+            line = f"{len(summary['runs'])} independent runs, best fitness: {fits}"
+            if checked:
+                passed = sum(r["check"]["passed"] for r in checked)
+                line += f"; {passed} of {len(checked)} pass the check"
+            print(line, file=sys.stderr)
     print(folder)
     return 0
 
@@ -166,7 +207,12 @@ def _replay(args) -> int:
     task = experiment.task
     trajectory = task.simulate(controller, solver=args.solver)
     values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
-    fitness = float(task.objective(trajectory))
+    if args.solver == "symplectic":
+        from .results import fitness_of
+
+        fitness = fitness_of(task, controller)  # exactly as the search computed it
+    else:
+        fitness = float(task.objective(trajectory))
     from .results import run_check
 
     report = {
@@ -201,6 +247,11 @@ def _compare(args) -> int:
         Path(args.config),
         argparse.Namespace(seed=None, evaluations=args.evaluations, batch=args.batch),
     )
+    if experiment.search["algorithm"] != "parallel_hill_climb":
+        raise ConfigError(
+            f"{args.config}: compare runs parallel_hill_climb with and without refinement; "
+            f"this config's [search] algorithm is {experiment.search['algorithm']!r}"
+        )
     try:
         settings = CompareSettings(
             seeds=seeds,
@@ -225,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     from .._devices import use_cpu_cores
 
     use_cpu_cores()
-    from .config import ConfigError, default_config_path
+    from .config import ConfigError, default_config_path, search_evaluations
 
     try:
         if args.command is None:
@@ -238,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(
                 f"{args.config}: ok ({experiment.name}: "
-                f"{experiment.search['evaluations']} evaluations)"
+                f"{search_evaluations(experiment.search)} evaluations)"
             )
             return 0
         if args.command == "compare":

@@ -20,11 +20,16 @@ import tomli_w
 
 from .._control.base import AbstractController
 from .._control.regimes import Regimes
+from .._control.time_bsr import TimeBSR
 from .._search.hill_climb import SearchResult, parallel_hill_climb
 from .._search.history import History
+from .._search.serial import serial_search
 from .config import ConfigError, Experiment, parse_config
 
-CONTROLLER_FAMILIES: dict[str, type[AbstractController]] = {"regimes": Regimes}
+CONTROLLER_FAMILIES: dict[str, type[AbstractController]] = {
+    "regimes": Regimes,
+    "time_bsr": TimeBSR,
+}
 FORMAT_VERSION = 1
 
 
@@ -102,15 +107,27 @@ def _run_search(experiment: Experiment, progress: bool) -> tuple[SearchResult, d
         del state
         marks.append((time.perf_counter(), len(part)))
 
-    result = parallel_hill_climb(
-        experiment.task,
-        key=jr.key(experiment.seed),
-        evaluations=s["evaluations"],
-        size=s["size"],
-        batch=s["batch"],
-        progress=progress,
-        callback=clock,
-    )
+    if s["algorithm"] == "serial_search":
+        result = serial_search(
+            experiment.task,
+            key=jr.key(experiment.seed),
+            seeds=s["runs"],
+            climbers=s["climbers"],
+            generations=s["generations"],
+            reseed_every=s["reseed_every"],
+            progress=progress,
+            callback=lambda state, parts: clock(state, [e for p in parts for e in p.fitness]),
+        )
+    else:
+        result = parallel_hill_climb(
+            experiment.task,
+            key=jr.key(experiment.seed),
+            evaluations=s["evaluations"],
+            size=s["size"],
+            batch=s["batch"],
+            progress=progress,
+            callback=clock,
+        )
     end = time.perf_counter()
     timing = {
         "search_time_s": end - start,
@@ -159,8 +176,27 @@ def run_experiment(
         trajectory = task.simulate(best)
         values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
         check = run_check(experiment, trajectory)
-        replay_fitness = float(task.objective(trajectory))
-        evaluations = len(result.history)
+        replay_fitness = fitness_of(task, best)
+        runs = getattr(result, "runs", (result,))
+        evaluations = sum(len(r.history) for r in runs)
+        per_run = None
+        if len(runs) > 1:
+            # Independent runs (serial search's `runs`): each one's best, replayed and checked.
+            per_run = []
+            for i, r in enumerate(runs):
+                replay = task.simulate(r.best)
+                verdict = run_check(experiment, replay)
+                per_run.append(
+                    {
+                        "run": i,
+                        "best_fitness": _json_number(r.best_fitness),
+                        "terms": {
+                            k: _json_number(float(v))
+                            for k, v in task.objective.values(replay).items()
+                        },
+                        "check": None if verdict is None else verdict.to_dict(),
+                    }
+                )
 
         (tmp / "config.toml").write_text(tomli_w.dumps(experiment.config))
         saved = controller_to_dict(best, task.space.family)
@@ -182,7 +218,7 @@ def run_experiment(
             "replay_fitness": _json_number(replay_fitness),
             "terms": {k: _json_number(v) for k, v in values.items()},
             "evaluations": evaluations,
-            "nonfinite_evaluations": result.history.num_nonfinite,
+            "nonfinite_evaluations": sum(r.history.num_nonfinite for r in runs),
             "wall_time_s": round(time.perf_counter() - started, 3),
             "search_time_s": round(search_seconds, 3),
             "evals_per_s": round(evaluations / search_seconds, 1),
@@ -191,6 +227,7 @@ def run_experiment(
             if "steady_evals_per_s" in timing
             else None,
             "check": None if check is None else check.to_dict(),
+            "runs": per_run,
             "devices": len(jax.devices()),
             "float": str(jnp.result_type(float)),
             "jax": jax.__version__,
@@ -201,6 +238,14 @@ def run_experiment(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+def fitness_of(task, controller) -> float:
+    """A controller's fitness computed exactly as the search computed it: by `task.evaluate`
+    (the objective compiled together with the simulation; summing a term's samples in another
+    compiled function may round its last bit differently)."""
+    one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], controller)
+    return float(task.evaluate(one)[0])
 
 
 def run_check(experiment: Experiment, trajectory):

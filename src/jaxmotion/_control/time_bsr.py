@@ -120,7 +120,9 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
     `reinit_probability` it is reinitialised from scratch (new targets, tau and start time),
     otherwise it creeps: every one of its parameters moves by a uniform step of at most
     `creep` times its range (tau on a log scale), clipped to the range. A rule's start time is
-    the split before its segment (rule 0 always starts the period). The paper gives no
+    the split before its segment (rule 0 always starts the period); a rule whose start moves
+    past another's changes places with it, so rules 1..R-1 stay in the order of their starts
+    and no other rule's start or response changes. The paper gives no
     probability for the two; the default 1/3 reinitialise, 2/3 creep is its Figure 5's mix.
 
     **Arguments:** `figure`; `num_rules` R (the paper: 4); `t_per` (s); `tau_min`, `tau_max`
@@ -228,7 +230,14 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
                 u_start * self.t_per,
                 jnp.clip(old + self.creep * self.t_per * (2.0 * u_start - 1.0), 0.0, self.t_per),
             )
-            splits = jnp.sort(jnp.where(rule > 0, splits.at[index].set(moved), splits))
+            starts = jnp.where(rule > 0, splits.at[index].set(moved), splits)
+            # Rules 1..R-1 are kept in the order of their starts and keep their own start:
+            # sorting the splits alone would hand a start that moved past a neighbour's to
+            # that neighbour, changing two rules.
+            order = jnp.argsort(starts, stable=True)
+            splits = starts[order]
+            targets = targets.at[1:].set(targets[1:][order])
+            taus = taus.at[1:].set(taus[1:][order])
         return TimeBSR(splits, targets, taus, controller.t_per)
 
     def trainable(self, controller: TimeBSR):
