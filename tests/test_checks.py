@@ -137,3 +137,39 @@ def test_a_run_that_blew_up_fails_and_bad_arguments_raise():
     )
     with pytest.raises(ValueError, match="batched"):
         jm.checks.somersault(batched)
+
+
+def test_shuffle_needs_a_point_on_the_floor_after_the_start_and_forward_travel():
+    # Resting exactly on the floor at t = 0 is not contact; the check starts after it.
+    grounded = lambda t: np.full(8, t > 0)
+    shuffler = trajectory(5.0, lambda t: [0.4 * t, 0, 0.5], contact=grounded)
+    result = jm.checks.shuffle(shuffler, body_length=1.0)
+    assert result.passed, result.summary()
+    assert result.figures["grounded_share"] == 1.0
+    hopper = trajectory(5.0, lambda t: [0.4 * t, 0, 0.5], contact=hopping)
+    assert not jm.checks.shuffle(hopper, body_length=1.0)
+    slow = trajectory(5.0, lambda t: [0.1 * t, 0, 0.5], contact=grounded)
+    assert not jm.checks.shuffle(slow, body_length=1.0)
+
+
+def test_cartwheel_needs_a_full_turn_about_the_lateral_axis_and_forward_travel():
+    wheel = trajectory(2.0, lambda t: [t, 0, 0.5], angles=lambda t: 1.1 * math.pi * t)
+    result = jm.checks.cartwheel(wheel, body_length=1.0)
+    assert result.passed, result.summary()
+    assert result.figures["turns"] == pytest.approx(1.1, rel=1e-5)
+    rocking = trajectory(2.0, lambda t: [t, 0, 0.5], angles=lambda t: math.sin(6 * t))
+    assert not jm.checks.cartwheel(rocking, body_length=1.0)
+    spin_in_place = trajectory(2.0, lambda t: [0, 0, 0.5], angles=lambda t: 1.1 * math.pi * t)
+    assert not jm.checks.cartwheel(spin_in_place, body_length=1.0)
+    pirouette = trajectory(2.0, lambda t: [t, 0, 0.5], angles=lambda t: 2 * math.pi * t, axis="z")
+    assert not jm.checks.cartwheel(pirouette, body_length=1.0)
+
+
+def test_bound_needs_airborne_phases_and_two_body_lengths():
+    bounder = trajectory(5.0, lambda t: [0.6 * t, 0, 0.5], contact=hopping)
+    result = jm.checks.bound(bounder, body_length=1.0)
+    assert result.passed, result.summary()
+    assert result.figures["airborne_phases"] == 5  # each of periods 0..4 starts with a leap
+    walker = trajectory(5.0, lambda t: [0.6 * t, 0, 0.5], contact=lambda t: np.ones(8, bool))
+    assert not jm.checks.bound(walker, body_length=1.0)
+    assert not jm.checks.bound(bounder, body_length=2.0)  # 3 m is 1.5 of its lengths
