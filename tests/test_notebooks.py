@@ -9,7 +9,7 @@ import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
-SMALL = {"EVALUATIONS": "200", "BATCH": "50", "DURATION": "1.0"}
+SMALL = {"EVALUATIONS": "200", "BATCH": "50", "DURATION": "1.0", "MOTIONS": '("star_man",)'}
 HERE = Path(__file__).resolve().parents[1] / "notebooks"
 
 

@@ -34,7 +34,7 @@ def star_man() -> Figure:
     (each limb against the head), each with range -45..45 degrees about its rest direction.
     Masses: head 2 kg, arms 1 kg, legs 1.5 kg; rods 3 cm thick.
 
-    He stands on his two feet (the leg tips), 0.81 m apart.
+    He stands on his two feet (the leg tips), 0.59 m apart.
     """
     hub = np.zeros(3)
     limbs = [90.0, 18.0, 162.0, -54.0, 234.0]  # head, front arm, back arm, front leg, back leg
@@ -89,13 +89,14 @@ def _leg(nodes: list, at: int, vector) -> tuple[int, int]:
 
 
 def cujo() -> Figure:
-    """Cujo (3D, dog-like, 7 rods): a spine (the root, 0.8 m along x, 5 kg), four legs of 0.4 m
-    (0.6 kg) hanging from its ends, a neck-and-head rod (0.35 m, 1 kg) rising forward at 45
-    degrees from the shoulders and a tail (0.3 m, 0.2 kg) rising backward at 45 degrees from the
-    hips. Each rod's joint has two angles (the paper's Figure 6): a swing about the lateral
-    axis y and a splay about the forward axis x (the head and tail: nod about y, turn about
-    z). Ranges (degrees): legs swing -18..18 and splay -7..7; head nod -15..15 and turn
-    -10..10; tail -15..15 both ways. Average range 25.8 degrees.
+    """Cujo (3D, dog-like, 7 rods): a spine (the root, 0.8 m along x, 5 kg); four legs of
+    0.43 m (0.6 kg; 0.4 m down and splayed 0.15 m sideways) hanging from its ends; a
+    neck-and-head rod (0.35 m, 1 kg) rising forward at 45 degrees from the shoulders; a tail
+    (0.3 m, 0.2 kg) rising backward at 45 degrees from the hips. Each rod's joint has two
+    angles (the paper's Figure 6): a swing about the lateral axis y and a splay about the
+    forward axis x (the head and tail: nod about y, turn about z). Ranges (degrees): legs
+    swing -18..18 and splay -7..7; head nod -15..15 and turn -10..10; tail -15..15 both ways.
+    Average range 25.8 degrees.
     """
     nodes: list = [np.array([-0.4, 0.0, 0.4]), np.array([0.4, 0.0, 0.4])]  # hips, shoulders
     rods = [(0, 1)]
@@ -121,13 +122,13 @@ def cujo() -> Figure:
 
 def rex() -> Figure:
     """Rex (3D, 15 rods): a two-legged dinosaur. Pelvis (the root, 0.3 m across, 6 kg); chest
-    (0.5 m forward and up, 5 kg), neck (0.3 m, 1 kg), head (0.35 m forward, 1.5 kg); a tail of
-    three rods (0.4, 0.35, 0.3 m backward and down; 1.5, 0.8, 0.4 kg); per leg a thigh (0.5 m,
-    2 kg), shin (0.5 m, 1 kg) and foot (0.25 m forward, 0.4 kg); two small arms (0.25 m,
-    0.3 kg) from the chest.
+    (0.52 m forward and up, 5 kg), neck (0.3 m, 1 kg), head (0.35 m forward, 1.5 kg); a tail
+    of three rods (0.43, 0.35, 0.32 m backward and down; 1.5, 0.8, 0.4 kg); per leg a thigh
+    (0.5 m, 2 kg), shin (0.5 m, 1 kg) and foot (0.25 m forward, 0.4 kg); two small arms
+    (0.27 m, 0.3 kg) from the chest.
 
     Two angles per joint, 28 in all (the paper's count, 2N - 2); about two thirds are fixed
-    and 10 are free (the paper's 47 search variables with 4 rules), average range 40 degrees:
+    and 10 are free (the paper's 47 search variables with 4 rules), average range 42 degrees:
     each hip swings -30..30 about y and splays -10..10 about x, each knee bends -40..0 about
     y, each ankle 0..40 about y; the tail's first rod turns -25..25 about z and the neck nods
     -25..25 about y. Every other angle is fixed at 0.
@@ -180,7 +181,7 @@ def bob() -> Figure:
     """Bob the Biped (3D, 9 rods, point feet): pelvis (the root, 0.3 m across, 6 kg), torso
     (from the left hip up to the shoulders on the midline, 0.57 m, 12 kg), head (0.3 m,
     4 kg), two thighs (0.45 m, 4 kg), two shins (0.45 m, 2.5 kg) ending in point feet, two
-    arms (0.6 m, 2 kg) hanging from the shoulders.
+    arms (0.63 m, 2 kg) hanging from the shoulders.
 
     Two angles per joint, 16 in all; 6 fixed and 10 free with ranges a little under 25
     degrees on average (24.8): hips swing -15..15 about y and splay -8..8 about x; knees bend
