@@ -173,9 +173,10 @@ def _batch_size(params) -> int:
 
 # Controllers simulated at once per device. `evaluate` runs larger batches as several calls
 # of this size: memory stays bounded, and a device's working set (its controllers' regime
-# tables and state) stays small enough for its cache. 500 measured fastest here; powers of
-# two (512) were up to twice as slow (cache conflicts between same-strided arrays).
-_CHUNK = 500
+# tables and state) stays small enough for its cache. About 500 measured fastest here;
+# powers of two (512) were up to twice as slow (cache conflicts between same-strided
+# arrays). A whole number of 16-lane groups (see `_MIN_SHARE`).
+_CHUNK = 496
 
 
 def _local_fitness(task: Task, params):
@@ -185,12 +186,18 @@ def _local_fitness(task: Task, params):
     return jax.vmap(task.objective)(trajectories)
 
 
-# XLA's CPU loops work on 16 float32 lanes at a time; batches shorter than that compile to
-# code whose rounding differs in the last bits, which chaotic contact-rich motion amplifies.
-# Every batch is therefore padded to at least this size, and split over devices only in
-# shares of at least this size: a controller's result is then bitwise the same whatever the
-# batch it comes in and the number of devices.
+# XLA's CPU loops work on 16 float32 lanes at a time, and the controllers left over past the
+# last whole group of lanes run through scalar code whose rounding differs in the last bits,
+# which chaotic contact-rich motion amplifies. Every device's share is therefore padded to a
+# whole number of groups (at least one): a controller's result is then bitwise the same
+# whatever the batch it comes in and the number of devices, up to the widths where XLA
+# splits its loops differently (measured: 64 controllers per device for the lattices, 128
+# for the figures; beyond them results agree to float32 rounding).
 _MIN_SHARE = 16
+
+
+def _round_up(n: int, multiple: int) -> int:
+    return max(multiple, -(-n // multiple) * multiple)
 
 
 def _mesh() -> Mesh:
@@ -221,11 +228,10 @@ def _sharded(fn, task: Task, params):
     batches, where splitting buys little, stay on one device)."""
     devices = jax.devices()
     batch = _batch_size(params)
-    if batch < _MIN_SHARE:
-        params = _padded(params, _MIN_SHARE)
     if len(devices) == 1 or batch < _MIN_SHARE * len(devices):
+        params = _padded(params, _round_up(batch, _MIN_SHARE))
         return jax.tree_util.tree_map(lambda a: a[:batch], fn(task, params))
-    params = _padded(params, batch + (-batch) % len(devices))
+    params = _padded(params, _round_up(batch, _MIN_SHARE * len(devices)))
     mesh = _mesh()
     dynamic, static = eqx.partition(task, eqx.is_array)
     local = lambda d, p: fn(eqx.combine(d, static), p)
