@@ -2,6 +2,7 @@
 `serial_search`, checked before anything compiles; a figure run writes the usual results
 folder and replays to the fitness the search recorded."""
 
+import argparse
 import json
 import subprocess
 import sys
@@ -10,7 +11,13 @@ from pathlib import Path
 import pytest
 
 import jaxmotion as jm
-from jaxmotion.experiment import ConfigError, load_config, parse_config
+from jaxmotion.experiment import (
+    ConfigError,
+    load_config,
+    load_result,
+    parse_config,
+    run_experiment,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 FIGURE_CONFIGS = ("starman_shuffle", "starman_cartwheel", "beryl_tumble", "cujo_bound")
@@ -119,20 +126,13 @@ def test_cli_rejects_batch_for_serial_search_before_compiling():
     assert "--batch applies to parallel_hill_climb" in out.stderr
 
 
-def test_cli_runs_a_figure_config_with_batched_runs_and_replays_it(tmp_path):
-    out = _cli(
-        "run",
-        ROOT / "configs" / "starman_shuffle.toml",
-        "--evaluations",
-        "30",
-        "--runs",
-        "2",
-        "--out",
-        tmp_path,
-        "--quiet",
-    )
-    assert out.returncode == 0, out.stderr
-    folder = Path(out.stdout.strip().splitlines()[-1])
+def test_a_figure_run_writes_its_results_with_batched_runs_and_replays_exactly(tmp_path):
+    from jaxmotion._cli.main import _load
+    from jaxmotion._cli.results import fitness_of
+
+    args = argparse.Namespace(seed=None, evaluations=30, batch=None, runs=2)
+    experiment = _load(ROOT / "configs" / "starman_shuffle.toml", args)  # as the CLI does
+    folder = run_experiment(experiment, directory=tmp_path, progress=False)
     assert (folder / "motion.gif").stat().st_size > 0
     summary = json.loads((folder / "summary.json").read_text())
     # 3 generations of 10 climbers (30 evaluations) after the initial 10, for each of 2 runs.
@@ -140,8 +140,7 @@ def test_cli_runs_a_figure_config_with_batched_runs_and_replays_it(tmp_path):
     assert [r["run"] for r in summary["runs"]] == [0, 1]
     assert summary["best_fitness"] == max(r["best_fitness"] for r in summary["runs"])
     assert all(r["check"]["name"] == "shuffle" for r in summary["runs"])
-    replay = _cli("replay", folder)
-    assert replay.returncode == 0, replay.stderr
-    report = json.loads(replay.stdout[replay.stdout.index("{") :])
-    assert report["fitness"] == summary["best_fitness"]
-    assert report["check"]["name"] == "shuffle"
+    loaded, controller = load_result(folder)
+    assert isinstance(controller, jm.TimeBSR)
+    # The saved controller (through JSON) replays to exactly the fitness the search recorded.
+    assert fitness_of(loaded.task, controller) == summary["best_fitness"]

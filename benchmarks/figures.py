@@ -1,0 +1,103 @@
+"""Throughput of `Task.evaluate` for articulated figures (the second paper's characters).
+
+A 1,000-step evaluation (T = 5 s at dt = 5 ms) of Star-Man, Cujo and Rex with random
+time-based BSR controllers (R = 4) at B = 1, 100 and 1000, on every CPU core (one JAX device
+per core), each figure in a fresh process so its compile time is its own.
+
+    python benchmarks/figures.py            # the table, and benchmarks/figures.json
+    python benchmarks/figures.py --quick    # B = 1 and 100, one timed call
+
+For scale (quoted, not measured here: 1,000-step rollouts of the 8-joint MuJoCo 'ant' on this
+machine): MuJoCo's C engine about 33 evals/s on 2 threads, MJX about 15/s at B = 1000, brax
+5-15/s; the paper: 3.3/s for Rex (0.3 s per evaluation on a DEC 3000/400).
+"""
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+FIGURES = ("star_man", "cujo", "rex")
+QUOTED = {"MuJoCo C (ant, 2 threads)": 33.0, "MJX (ant, B=1000)": 15.0, "paper (Rex)": 3.3}
+DT, DURATION = 0.005, 5.0
+
+
+def child(name: str, batches: list[int], repeats: int) -> dict:
+    import jax
+    import jax.random as jr
+
+    import jaxmotion as jm
+
+    jm.use_cpu_cores()
+    fig = getattr(jm.figures, name)()
+    task = jm.Task(
+        fig,
+        jm.World(floor_stiffness=1.0e4, floor_damping=100.0, friction_velocity=0.1),
+        jm.TimeBSRSpace(fig, num_rules=4, t_per=1.0, tau_min=0.05, tau_max=DURATION / 4),
+        jm.Objective({"forward": 1.0}),
+        duration=DURATION,
+        dt=DT,
+    )
+    out = {"figure": name, "devices": len(jax.devices()), "steps": round(DURATION / DT), "B": {}}
+    for b in batches:
+        first = task.sample(b, key=jr.key(0))
+        start = time.perf_counter()
+        task.evaluate(first).block_until_ready()
+        first_call = time.perf_counter() - start
+        times = []
+        for k in range(repeats):
+            params = task.sample(b, key=jr.key(k + 1))
+            start = time.perf_counter()
+            fitness = task.evaluate(params).block_until_ready()
+            times.append(time.perf_counter() - start)
+        steady = statistics.median(times)
+        out["B"][b] = {
+            "evals_per_s": b / steady,
+            "seconds_per_call": steady,
+            "compile_s": max(0.0, first_call - steady),
+            "finite_share": float((fitness > -float("inf")).mean()),
+        }
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--quick", action="store_true", help="B = 1, 100 and one timed call")
+    p.add_argument("--child", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    batches = [1, 100] if args.quick else [1, 100, 1000]
+    repeats = 1 if args.quick else 3
+    if args.child:
+        print(json.dumps(child(args.child, batches, repeats)))
+        return
+    results = []
+    for name in FIGURES:
+        cmd = [sys.executable, __file__, "--child", name] + (["--quick"] if args.quick else [])
+        done = subprocess.run(cmd, capture_output=True, text=True, check=True)
+        results.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    print(
+        f"Task.evaluate, {round(DURATION / DT)} steps (T = {DURATION} s, dt = {DT} s), "
+        f"{results[0]['devices']} devices; evals/s (median of {repeats}), compile s"
+    )
+    print(f"{'figure':10s}" + "".join(f"{'B = ' + str(b):>16s}" for b in batches))
+    for r in results:
+        cells = "".join(
+            f"{r['B'][str(b)]['evals_per_s']:9.0f} ({r['B'][str(b)]['compile_s']:4.1f} s)"
+            for b in batches
+        )
+        print(f"{r['figure']:10s}{cells}")
+    rex = next(r for r in results if r["figure"] == "rex")
+    top = rex["B"][str(batches[-1])]
+    print(f"Rex at B = {batches[-1]}: {top['evals_per_s']:.0f} evals/s; for scale (quoted):")
+    for label, value in QUOTED.items():
+        print(f"  {label}: {value:g}/s  (ratio {top['evals_per_s'] / value:.0f}x)")
+    out = Path(__file__).with_suffix(".json")
+    out.write_text(json.dumps({"results": results, "quoted": QUOTED}, indent=2) + "\n")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
