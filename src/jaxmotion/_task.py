@@ -173,10 +173,10 @@ def _batch_size(params) -> int:
 
 # Controllers simulated at once per device. `evaluate` runs larger batches as several calls
 # of this size: memory stays bounded, and a device's working set (its controllers' regime
-# tables and state) stays small enough for its cache. About 500 measured fastest here;
-# powers of two (512) were up to twice as slow (cache conflicts between same-strided
-# arrays). A whole number of 16-lane groups (see `_MIN_SHARE`).
-_CHUNK = 496
+# tables and state) stays small enough for its cache. 500 measured fastest here (padded to
+# 504, see `_LANES`); powers of two (512) were up to twice as slow (cache conflicts between
+# same-strided arrays).
+_CHUNK = 500
 
 
 def _local_fitness(task: Task, params):
@@ -186,18 +186,21 @@ def _local_fitness(task: Task, params):
     return jax.vmap(task.objective)(trajectories)
 
 
-# XLA's CPU loops work on 16 float32 lanes at a time, and the controllers left over past the
-# last whole group of lanes run through scalar code whose rounding differs in the last bits,
-# which chaotic contact-rich motion amplifies. Every device's share is therefore padded to a
-# whole number of groups (at least one): a controller's result is then bitwise the same
-# whatever the batch it comes in and the number of devices, up to the widths where XLA
-# splits its loops differently (measured: 64 controllers per device for the lattices, 128
-# for the figures; beyond them results agree to float32 rounding).
+# XLA's CPU loops work on groups of 8 float32 lanes; the controllers left over past the last
+# whole group run through scalar code whose rounding differs in the last bits, which chaotic
+# contact-rich motion amplifies, and batches shorter than 16 compile to different code
+# again. Every device's share is therefore at least `_MIN_SHARE` and a whole number of
+# `_LANES` groups: a controller's result is then bitwise the same whatever the batch it comes
+# in and the number of devices, up to the widths where XLA splits its loops differently
+# (measured: 64 controllers per device for the lattices, 128 for the figures; beyond them
+# results agree to float32 rounding).
 _MIN_SHARE = 16
+_LANES = 8
 
 
-def _round_up(n: int, multiple: int) -> int:
-    return max(multiple, -(-n // multiple) * multiple)
+def _share(n: int) -> int:
+    """A device's share of `n` controllers, padded (see `_MIN_SHARE`)."""
+    return max(_MIN_SHARE, -(-n // _LANES) * _LANES)
 
 
 def _mesh() -> Mesh:
@@ -229,9 +232,9 @@ def _sharded(fn, task: Task, params):
     devices = jax.devices()
     batch = _batch_size(params)
     if len(devices) == 1 or batch < _MIN_SHARE * len(devices):
-        params = _padded(params, _round_up(batch, _MIN_SHARE))
+        params = _padded(params, _share(batch))
         return jax.tree_util.tree_map(lambda a: a[:batch], fn(task, params))
-    params = _padded(params, _round_up(batch, _MIN_SHARE * len(devices)))
+    params = _padded(params, _share(-(-batch // len(devices))) * len(devices))
     mesh = _mesh()
     dynamic, static = eqx.partition(task, eqx.is_array)
     local = lambda d, p: fn(eqx.combine(d, static), p)
