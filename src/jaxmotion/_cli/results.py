@@ -116,7 +116,8 @@ def _run_search(experiment: Experiment, progress: bool) -> tuple[SearchResult, d
             generations=s["generations"],
             reseed_every=s["reseed_every"],
             progress=progress,
-            callback=lambda state, parts: clock(state, [e for p in parts for e in p.fitness]),
+            # One History per run: the step's evaluations are all of theirs together.
+            callback=lambda state, parts: clock(state, range(sum(len(p) for p in parts))),
         )
     else:
         result = parallel_hill_climb(
