@@ -302,17 +302,12 @@ class Figure(AbstractBody):
     # ------------------------------------------------------------------ kinematics
 
     def _rod_inertias(self):
-        """Each rod's inertia about its centre, rest pose, world axes (constants)."""
+        """Each rod's `(axial, transverse)` moments of inertia about its centre (constants):
+        about the rod's own axis and about any axis across it."""
         out = []
-        for k, (p, d) in enumerate(self.rods):
-            u = np.array(self.nodes[d]) - np.array(self.nodes[p])
-            length = float(np.linalg.norm(u))
-            u = u / length
-            m, r = self.masses[k], self.radii[k]
-            axial, transverse = m * r * r / 2, m * (3 * r * r + length * length) / 12
-            inertia = transverse * np.eye(3) + (axial - transverse) * np.outer(u, u)
-            inertia[np.abs(inertia) < 1e-15 * transverse] = 0.0  # exact zeros fold away
-            out.append(tuple(tuple(float(x) for x in row) for row in inertia))
+        for k, length in enumerate(self.lengths):
+            m, r, length = self.masses[k], self.radii[k], float(length)
+            out.append((m * r * r / 2, m * (3 * r * r + length * length) / 12))
         return out
 
     def _all_angles(self, free_angles, free_rates=None):
@@ -369,37 +364,46 @@ class Figure(AbstractBody):
             vel[d] = s.vadd(vel[p], s.cross(w, seg))
         return pos, vel, orient, spin
 
-    def _mass_properties(self, pos, vel, orient, spin):
+    def _centre(self, pos, like):
+        """Centre of mass of the figure whose nodes are at `pos` (or its velocity, given the
+        nodes' velocities), and the rods' centres as a vector of `(rods, *batch)` arrays."""
+        mids = _nodes([s.vscale(0.5, s.vadd(pos[p], pos[d])) for p, d in self.rods], like)
+        share = _column(np.asarray(self.masses) / self.total_mass, self.num_rods, like)
+        return tuple(_sum_leading(s.mul(share, x)) for x in mids), mids
+
+    def _mass_properties(self, pos, vel, spin, like):
         """Centre of mass (root frame), its velocity relative to the root, the inertia about
-        it and the angular momentum `h` of the joint motion about it (root frame)."""
-        masses = self.masses
-        total_mass = self.total_mass
-        mids = [s.vscale(0.5, s.vadd(pos[p], pos[d])) for p, d in self.rods]
-        mid_vel = [s.vscale(0.5, s.vadd(vel[p], vel[d])) for p, d in self.rods]
+        it and the angular momentum `h` of the joint motion about it (root frame), from the
+        nodes' positions and velocities and the rods' angular velocities (all relative to
+        the root), for all rods at once.
 
-        def mean(values):
-            return tuple(
-                s.mul(
-                    1.0 / total_mass,
-                    s.total(s.mul(m, c[i]) for m, c in zip(masses, values, strict=True)),
-                )
-                for i in range(3)
-            )
-
-        com, com_vel = mean(mids), mean(mid_vel)
-        inertia = ((0.0,) * 3,) * 3
-        h = s.ZERO
-        for k, own in enumerate(self._rod_inertias()):
-            g, m = orient[k], masses[k]
-            turned = s.matmul(s.matmul(g, own), s.transpose(g))
-            r = s.vsub(mids[k], com)
-            rr = s.dot(r, r)
-            parallel = tuple(
-                tuple(s.mul(m, s.sub(rr if i == j else 0.0, s.mul(r[i], r[j]))) for j in range(3))
-                for i in range(3)
-            )
-            inertia = s.madd(inertia, s.madd(turned, parallel))
-            h = s.vadd(h, s.vadd(s.vscale(m, s.cross(r, mid_vel[k])), s.matvec(turned, spin[k])))
+        A rod with direction `u` has the inertia `t 1 + (a - t) u u^T` about its centre
+        (`a` axial, `t` transverse): the whole figure's inertia is the constant `sum t` on
+        the diagonal plus, per rod, the dyad `(a - t) / l^2 seg seg^T` of its segment and
+        the parallel-axis term; only the six distinct entries are computed.
+        """
+        axial, transverse = (np.array(x) for x in zip(*self._rod_inertias(), strict=True))
+        com, mids = self._centre(pos, like)
+        com_vel, mid_vel = self._centre(vel, like)
+        column = lambda values: _column(values, self.num_rods, like)
+        seg = _nodes([s.vsub(pos[d], pos[p]) for p, d in self.rods], like)
+        dyad = s.vscale(column((axial - transverse) / self.lengths**2), seg)
+        r = s.vsub(mids, com)
+        mr = s.vscale(column(self.masses), r)
+        squares = [s.mul(mr[i], r[i]) for i in range(3)]
+        mrr = s.total(squares)
+        entries = {}
+        for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)):
+            if i == j:
+                per_rod = s.add(s.sub(mrr, squares[i]), s.mul(dyad[i], seg[i]))
+                entries[i, j] = s.add(float(transverse.sum()), _sum_leading(per_rod))
+            else:
+                per_rod = s.sub(s.mul(dyad[i], seg[j]), s.mul(mr[i], r[j]))
+                entries[i, j] = _sum_leading(per_rod)
+        inertia = tuple(tuple(entries[min(i, j), max(i, j)] for j in range(3)) for i in range(3))
+        spins = _nodes(spin, like)
+        own = s.vadd(s.vscale(column(transverse), spins), s.vscale(s.dot(seg, spins), dyad))
+        h = tuple(_sum_leading(x) for x in s.vadd(s.cross(mr, mid_vel), own))
         return com, com_vel, inertia, h
 
     def pose(self, angles: Float[ArrayLike, " num_free"] | None = None) -> np.ndarray:
@@ -454,8 +458,8 @@ class Figure(AbstractBody):
         q = np.array([1.0, 0, 0, 0]) if orientation is None else np.asarray(orientation, float)
         q = q / np.linalg.norm(q)
         all_a, all_r = self._all_angles([float(x) for x in a], [float(x) for x in ad])
-        pos, vel, orient, spin = self._kinematics(all_a, all_r)
-        com_rel, _, inertia, h = self._mass_properties(pos, vel, orient, spin)
+        pos, vel, _, spin = self._kinematics(all_a, all_r)
+        com_rel, _, inertia, h = self._mass_properties(pos, vel, spin, np.zeros(()))
         rot = np.array([[float(x) for x in row] for row in s.quaternion_matrix(tuple(q))])
         if com is None:
             rel = np.array([[float(c) for c in p] for p in pos]) - np.array(
@@ -530,12 +534,39 @@ def _trig(angles):
     return [(c[i], sn[i]) for i in range(len(angles))]
 
 
+def _nodes(vectors, like):
+    """Per-node (or per-rod) vectors, a list of symbolic 3-vectors, as one vector of
+    `(nodes, *batch)` arrays; a component that is zero at every node stays the constant
+    0.0."""
+    out = []
+    for i in range(3):
+        values = [v[i] for v in vectors]
+        if all(s.const(x) and x == 0.0 for x in values):
+            out.append(0.0)
+        else:
+            out.append(_broadcast(values, like))
+    return tuple(out)
+
+
+def _sum_leading(x):
+    """Sum over the leading (node or rod) axis; a constant 0.0 stays 0.0."""
+    if s.const(x):
+        return 0.0
+    return (np if isinstance(x, np.ndarray) else jnp).sum(x, axis=0)
+
+
+def _column(values, n, like):
+    """Per-rod constants shaped to broadcast against `(n, *batch)` arrays."""
+    return np.asarray(values, dtype=like.dtype).reshape(n, *(1,) * np.ndim(like))
+
+
 def _rows(x, n):
     return [x[i] for i in range(n)]
 
 
 def _broadcast(values, like):
-    return jnp.stack([jnp.broadcast_to(jnp.asarray(v, like.dtype), like.shape) for v in values])
+    xp = np if isinstance(like, np.ndarray) else jnp
+    return xp.stack([xp.broadcast_to(xp.asarray(v, like.dtype), like.shape) for v in values])
 
 
 class FigureDynamics(AbstractDynamics):
@@ -593,36 +624,31 @@ class FigureDynamics(AbstractDynamics):
         com, quat, angles, com_vel, momentum, rates = self._unpack(positions, velocities)
         kin_angles, kin_rates, state_rates = self._limits(angles, rates)
         all_a, all_r = fig._all_angles(_trig(kin_angles), kin_rates)
-        pos, vel, orient, spin = _barrier(fig._kinematics(all_a, all_r))
-        com_rel, com_rel_vel, inertia, h = _barrier(fig._mass_properties(pos, vel, orient, spin))
+        # What depends on the positions alone is kept apart from what depends on the
+        # velocities too: the semi-implicit step evaluates the rates twice at the same
+        # positions, and XLA then computes the shared part once.
+        pos, vel, _, spin = fig._kinematics(all_a, all_r)
+        pos = _barrier(pos)
+        vel, spin = _barrier((vel, spin))
+        like = positions[0][0]
+        com_rel, com_rel_vel, inertia, h = fig._mass_properties(pos, vel, spin, like)
+        com_rel, inertia = _barrier((com_rel, inertia))
+        com_rel_vel, h = _barrier((com_rel_vel, h))
         rot = _barrier(s.quaternion_matrix(quat))
         w_body = _barrier(s.solve_symmetric(inertia, s.vsub(s.tmatvec(rot, momentum), h)))
-        # Contact at every node: world positions and velocities relative to the com.
-        like = positions[0][0]
+        # Contact at every node, all nodes at once (leading node axis): world positions and
+        # velocities relative to the com.
         force, torque = s.ZERO, s.ZERO
         if world.floor:
-            rel = [s.vsub(p, com_rel) for p in pos]
-            rel_vel = [
-                s.vadd(s.cross(w_body, r), s.vsub(v, com_rel_vel))
-                for r, v in zip(rel, vel, strict=True)
-            ]
-            arm = [s.matvec(rot, r) for r in rel]
-            px, py, pz = (_broadcast([s.add(com[i], a[i]) for a in arm], like) for i in range(3))
-            vx, vy, vz = (
-                _broadcast(
-                    [s.add(com_vel[i], x[i]) for x in (s.matvec(rot, rv) for rv in rel_vel)], like
-                )
-                for i in range(3)
-            )
+            rel = s.vsub(_nodes(pos, like), com_rel)
+            rel_vel = s.vadd(s.cross(w_body, rel), s.vsub(_nodes(vel, like), com_rel_vel))
+            arm = s.matvec(rot, rel)
+            px, py, pz = s.vadd(com, arm)
+            vx, vy, vz = s.vadd(com_vel, s.matvec(rot, rel_vel))
             fx, fy, fz = floor_force(world, px, py, pz, vx, vy, vz)
-            if fig.planar:
-                fy = jnp.zeros_like(fx)
-            forces = [(fx[i], 0.0 if fig.planar else fy[i], fz[i]) for i in range(fig.num_nodes)]
-            force = tuple(s.total(f[i] for f in forces) for i in range(3))
-            torque = tuple(
-                s.total(t[i] for t in (s.cross(a, f) for a, f in zip(arm, forces, strict=True)))
-                for i in range(3)
-            )
+            forces = (fx, 0.0 if fig.planar else fy, fz)
+            force = tuple(_sum_leading(f) for f in forces)
+            torque = tuple(_sum_leading(t) for t in s.cross(arm, forces))
         m = fig.total_mass
         acc = (
             s.mul(1.0 / m, force[0]),
@@ -660,12 +686,13 @@ class FigureDynamics(AbstractDynamics):
             for (lo, hi), a in zip(fig.ranges, angles, strict=True)
         ]
         all_a, all_r = fig._all_angles(_trig(kin_angles))
-        pos, vel, orient, spin = fig._kinematics(all_a, all_r)
-        com_rel, _, _, _ = fig._mass_properties(pos, vel, orient, spin)
-        rot = s.quaternion_matrix(quat)
+        pos = _barrier(fig._kinematics(all_a, all_r)[0])
         like = positions[0][0]
+        com_rel = _barrier(fig._centre(pos, like)[0])
+        rot = _barrier(s.quaternion_matrix(quat))
+        world_points = s.vadd(com, s.matvec(rot, s.vsub(_nodes(pos, like), com_rel)))
         points = jnp.stack(
-            [_broadcast(s.vadd(com, s.matvec(rot, s.vsub(p, com_rel))), like) for p in pos]
+            [jnp.broadcast_to(c, (fig.num_nodes, *like.shape)) for c in world_points], axis=1
         )  # (num_nodes, 3, *batch)
         frame = s.matmul(rot, fig.frame)
         frame = jnp.stack([_broadcast(row, like) for row in frame])
