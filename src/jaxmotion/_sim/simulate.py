@@ -252,6 +252,12 @@ def simulate_batch(
             lambda y, act: dynamics.rates(y, act, world), in_axes=-1, out_axes=-1
         )
 
+    # diffrax traces the vector field several times (structure checks, the loop body twice,
+    # and the semi-implicit step calls it twice). Under `jax.jit(inline=True)` every call
+    # with the same shapes reuses one trace, inlined where it is called (the computation
+    # is unchanged; tracing a figure's step takes a large share of its compile time).
+    batched_rates = jax.jit(batched_rates, inline=True)
+
     def vector_field(t, y, args):
         ctrl, plan = args
         return batched_rates(y, batched_actuation(t, ctrl, plan))
