@@ -133,3 +133,18 @@ def test_sharding_over_two_devices_gives_identical_results():
     assert (one["devices"], two["devices"]) == (1, 2)
     assert one["7"] == two["7"]
     assert one["41"] == two["41"]
+
+
+def test_simulation_compiler_options_are_kept_only_if_xla_knows_them(monkeypatch):
+    """The simulations compile with the preferred XLA options; an option this XLA does not
+    know (a later XLA may drop one) is left out instead of failing every compile."""
+    from jaxmotion._sim import compile as compilation
+
+    compilation.compiler_options.cache_clear()
+    try:
+        assert compilation.compiler_options() == compilation._PREFERRED
+        compilation.compiler_options.cache_clear()
+        monkeypatch.setattr(compilation, "_PREFERRED", {"xla_cpu_no_such_option": False})
+        assert compilation.compiler_options() == {}
+    finally:
+        compilation.compiler_options.cache_clear()

@@ -12,6 +12,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from ._body.base import AbstractBody
 from ._control.base import AbstractController, AbstractControllerSpace
 from ._objective.registry import Objective
+from ._sim.compile import simulation_jit
 from ._sim.simulate import SolverName, simulate, simulate_batch, time_grid
 from ._sim.trajectory import Trajectory
 from ._world import World
@@ -150,7 +151,7 @@ class Task(eqx.Module):
         return self.objective(trajectory)
 
 
-@eqx.filter_jit
+@simulation_jit
 def _simulate_one(task: Task, params, solver, dt, save_dt) -> Trajectory:
     return simulate(
         task.body, params, task.world, task.duration, dt=dt, save_dt=save_dt, solver=solver
@@ -248,12 +249,12 @@ def _sharded(fn, task: Task, params):
     return jax.tree_util.tree_map(lambda a: a[:batch], out)
 
 
-@eqx.filter_jit
+@simulation_jit
 def _evaluate(task: Task, params) -> Float[Array, " batch"]:
     return _sharded(_local_fitness, task, params)
 
 
-@eqx.filter_jit
+@simulation_jit
 def _trajectories(task: Task, params) -> Trajectory:
     return _sharded(
         lambda t, p: simulate_batch(t.body, p, t.world, t.duration, dt=t.dt, save_dt=t.save_dt),

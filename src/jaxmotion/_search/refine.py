@@ -11,6 +11,7 @@ import optax
 from jaxtyping import Array, Float
 
 from .._control.base import AbstractController
+from .._sim.compile import simulation_jit
 from .._task import _MIN_SHARE, Task, _batch_size, _local_fitness, _padded, _replicated
 from .history import History
 
@@ -93,7 +94,7 @@ def _local_value_and_grad(task: Task, trainable, frozen, smoothing: Smoothing):
     return fitness, grads
 
 
-@eqx.filter_jit
+@simulation_jit
 def _value_and_grad(task: Task, params, spec, smoothing: Smoothing):
     """Smoothed fitness and its gradient for every controller (leading batch axis)."""
 
