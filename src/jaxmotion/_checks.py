@@ -84,6 +84,16 @@ def _forward(t: dict) -> float:
     return float(np.dot(t["com"][-1, :2] - t["com"][0, :2], heading))
 
 
+def _travel(t: dict, body_length: float, min_lengths: float) -> tuple[dict, dict]:
+    """The figures and the criterion of "the centre of mass travels forward at least
+    `min_lengths` body lengths", shared by the locomotion checks."""
+    body_length = _positive("body_length", body_length)
+    lengths = _forward(t) / body_length
+    figures = {"forward_body_lengths": lengths, "forward_m": lengths * body_length}
+    label = f"travels forward >= {min_lengths:g} body lengths (got {lengths:.2f})"
+    return figures, {label: lengths >= min_lengths}
+
+
 def _result(name: str, finite: bool, figures: dict, criteria: dict) -> CheckResult:
     criteria = {"the simulation stayed finite": finite, **criteria}
     return CheckResult(name, all(criteria.values()), figures, criteria)
@@ -109,26 +119,23 @@ def leap(
     controller's `period` (s, `t_per`); the thresholds.
     """
     t = _single(trajectory, "leap")
-    body_length = _positive("body_length", body_length)
+    travel, far = _travel(t, body_length, min_lengths)
     period = _positive("period", period)
-    lengths = _forward(t) / body_length
     tilt = float(_tilt_degrees(t["frame"]).max())
     airborne = ~np.any(t["contact"], axis=1)
     airborne[0] = False  # the start, resting on the floor, is not a leap
     periods = np.floor(t["ts"] / period + 1e-9).astype(int)
     airborne_periods = len(set(periods[airborne].tolist()))
     figures = {
-        "forward_body_lengths": lengths,
-        "forward_m": lengths * body_length,
+        **travel,
         "max_tilt_degrees": tilt,
         "airborne_periods": float(airborne_periods),
         "periods": float(t["ts"][-1] / period),
     }
-    far = f"travels forward >= {min_lengths:g} body lengths (got {lengths:.2f})"
     steady = f"never tilts more than {max_tilt_degrees:g} degrees (max {tilt:.1f})"
     leaps = f"airborne in >= {min_airborne_periods} periods (got {airborne_periods})"
     criteria = {
-        far: lengths >= min_lengths,
+        **far,
         steady: tilt <= max_tilt_degrees,
         leaps: airborne_periods >= min_airborne_periods,
     }
@@ -225,19 +232,13 @@ def shuffle(trajectory: Trajectory, *, body_length: float, min_lengths: float = 
     every saved instant after the start at least one point touches the floor.
     """
     t = _single(trajectory, "shuffle")
-    body_length = _positive("body_length", body_length)
-    lengths = _forward(t) / body_length
+    travel, far = _travel(t, body_length, min_lengths)
     # The start is skipped: resting exactly on the floor (z = 0) is not contact yet.
     grounded = np.any(t["contact"][1:], axis=1)
     share = float(np.mean(grounded))
-    figures = {
-        "forward_body_lengths": lengths,
-        "forward_m": lengths * body_length,
-        "grounded_share": share,
-    }
+    figures = {**travel, "grounded_share": share}
     criteria = {
-        f"travels forward >= {min_lengths:g} body lengths (got {lengths:.2f})": lengths
-        >= min_lengths,
+        **far,
         f"some point always on the floor (got {100 * share:.1f}% of instants)": bool(
             np.all(grounded)
         ),
@@ -260,15 +261,13 @@ def cartwheel(
     body lengths.
     """
     t = _single(trajectory, "cartwheel")
-    body_length = _positive("body_length", body_length)
+    travel, far = _travel(t, body_length, min_lengths)
     turns = float(rotations(trajectory))
-    lengths = _forward(t) / body_length
-    figures = {"turns": turns, "forward_body_lengths": lengths, "forward_m": lengths * body_length}
+    figures = {"turns": turns, **travel}
     criteria = {
         f"turns >= {min_turns:g} times about the lateral axis (got {turns:.2f})": turns
         >= min_turns,
-        f"travels forward >= {min_lengths:g} body lengths (got {lengths:.2f})": lengths
-        >= min_lengths,
+        **far,
     }
     return _result("cartwheel", t["finite"], figures, criteria)
 
@@ -287,17 +286,11 @@ def bound(
     `min_airborne_phases` separate phases.
     """
     t = _single(trajectory, "bound")
-    body_length = _positive("body_length", body_length)
-    lengths = _forward(t) / body_length
+    travel, far = _travel(t, body_length, min_lengths)
     phases = _airborne_phases(t)
-    figures = {
-        "forward_body_lengths": lengths,
-        "forward_m": lengths * body_length,
-        "airborne_phases": float(phases),
-    }
+    figures = {**travel, "airborne_phases": float(phases)}
     criteria = {
-        f"travels forward >= {min_lengths:g} body lengths (got {lengths:.2f})": lengths
-        >= min_lengths,
+        **far,
         f"airborne in >= {min_airborne_phases} phases (got {phases})": phases
         >= min_airborne_phases,
     }

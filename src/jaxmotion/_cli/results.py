@@ -173,19 +173,20 @@ def run_experiment(
         search_seconds = timing["search_time_s"]
         task = experiment.task
         best = result.best
-        # Replayed with the search's own settings, so its terms are what the search scored.
-        trajectory = task.simulate(best)
+        runs = getattr(result, "runs", (result,))
+        evaluations = sum(len(r.history) for r in runs)
+        # Every run's best replayed with the search's own settings, so its terms are what the
+        # search scored; the overall best is the best run's (serial search's `runs`).
+        replays = [task.simulate(r.best) for r in runs]
+        trajectory = replays[int(np.argmax([r.best_fitness for r in runs]))]
         values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
         check = run_check(experiment, trajectory)
         replay_fitness = fitness_of(task, best)
-        runs = getattr(result, "runs", (result,))
-        evaluations = sum(len(r.history) for r in runs)
         per_run = None
         if len(runs) > 1:
-            # Independent runs (serial search's `runs`): each one's best, replayed and checked.
+            # Independent runs: each one's best, replayed and checked.
             per_run = []
-            for i, r in enumerate(runs):
-                replay = task.simulate(r.best)
+            for i, (r, replay) in enumerate(zip(runs, replays, strict=True)):
                 verdict = run_check(experiment, replay)
                 per_run.append(
                     {
