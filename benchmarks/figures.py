@@ -90,6 +90,8 @@ def main() -> None:
         )
         print(f"{r['figure']:10s}{cells}")
     rex = next(r for r in results if r["figure"] == "rex")
+    worst = max(cell["compile_s"] for cell in rex["B"].values())
+    print(f"Rex compile, slowest batch size: {worst:.1f} s (target <= 10 s)")
     top = rex["B"][str(batches[-1])]
     print(f"Rex at B = {batches[-1]}: {top['evals_per_s']:.0f} evals/s; for scale (quoted):")
     for label, value in QUOTED.items():

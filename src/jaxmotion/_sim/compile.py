@@ -29,14 +29,19 @@ def compiler_options() -> dict:
 
 
 def simulation_jit(fn: Callable) -> Callable:
-    """`eqx.filter_jit(fn)`, compiled with `compiler_options()`."""
+    """`eqx.filter_jit(fn)`, compiled with `compiler_options()` (`.lower(...)` as well, to
+    inspect or time the compilation)."""
     jitted = None
 
-    @functools.wraps(fn)
-    def call(*args, **kwargs):
+    def get():
         nonlocal jitted
         if jitted is None:
             jitted = eqx.filter_jit(fn, compiler_options=compiler_options() or None)
-        return jitted(*args, **kwargs)
+        return jitted
 
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        return get()(*args, **kwargs)
+
+    call.lower = lambda *args, **kwargs: get().lower(*args, **kwargs)
     return call
