@@ -302,13 +302,10 @@ class Figure(AbstractBody):
     # ------------------------------------------------------------------ kinematics
 
     def _rod_inertias(self):
-        """Each rod's `(axial, transverse)` moments of inertia about its centre (constants):
-        about the rod's own axis and about any axis across it."""
-        out = []
-        for k, length in enumerate(self.lengths):
-            m, r, length = self.masses[k], self.radii[k], float(length)
-            out.append((m * r * r / 2, m * (3 * r * r + length * length) / 12))
-        return out
+        """The rods' `(axial, transverse)` moments of inertia about their centres (constant
+        arrays): about each rod's own axis and about any axis across it."""
+        m, r, length = np.asarray(self.masses), np.asarray(self.radii), self.lengths
+        return m * r * r / 2, m * (3 * r * r + length * length) / 12
 
     def _all_angles(self, free_angles, free_rates=None):
         """Every joint angle (and rate) as scalars: free ones from the given lists, fixed ones
@@ -382,7 +379,7 @@ class Figure(AbstractBody):
         the diagonal plus, per rod, the dyad `(a - t) / l^2 seg seg^T` of its segment and
         the parallel-axis term; only the six distinct entries are computed.
         """
-        axial, transverse = (np.array(x) for x in zip(*self._rod_inertias(), strict=True))
+        axial, transverse = self._rod_inertias()
         com, mids = self._centre(pos, like)
         com_vel, mid_vel = self._centre(vel, like)
         column = lambda values: _column(values, self.num_rods, like)

@@ -12,7 +12,7 @@ from jaxtyping import Array, Float
 
 from .._control.base import AbstractController
 from .._sim.compile import simulation_jit
-from .._task import _MIN_SHARE, Task, _batch_size, _local_fitness, _padded, _replicated
+from .._task import Task, _batch_size, _local_fitness, _padded, _replicated, _share
 from .history import History
 
 
@@ -100,9 +100,10 @@ def _value_and_grad(task: Task, params, spec, smoothing: Smoothing):
 
     # One device: reverse-mode through diffrax inside `shard_map` fails in equinox's
     # closure conversion (it sees the per-device shapes), so gradients are not yet sharded.
-    # Padding to 16 lanes keeps the forward values identical to `Task.evaluate`'s.
+    # Padded as `Task.evaluate` pads one device's share (whole lane groups, at least 16),
+    # so the forward values are identical to its single-device ones.
     batch = _batch_size(params)
-    padded = _padded(params, max(batch, _MIN_SHARE))
+    padded = _padded(params, _share(batch))
     trainable, frozen = eqx.partition(padded, spec)
     out = _local_value_and_grad(task, trainable, frozen, smoothing)
     return jax.tree_util.tree_map(lambda a: a[:batch], out)
