@@ -143,14 +143,18 @@ def diffrax_overhead(batch: int, dt: float, repeats: int) -> dict:
         )
         return (last(params), last(plans)), y0
 
-    def vector_field(t, y, args):
-        controller, plan = args
-        return dynamics.rates(y, controller.actuation(t, plan), world)
+    # The step `simulate_batch` takes: the controllers' choice (`schedule`) carried from one
+    # step to the next, the actuation built from it, the batch-last rates.
+    schedule = lambda t, args: args[0].schedule(t)
+    rates = lambda t, y, args, s: dynamics.rates(y, args[0].actuation_from(s, args[1]), world)
+    vector_field = lambda t, y, args: rates(t, y, args, schedule(t, args))
 
     @jax.jit
     def with_diffrax(params):
         args, y0 = setup(params)
-        positions, _ = _solve(grid, vector_field, y0, args, "symplectic")
+        positions, _ = _solve(
+            grid, vector_field, y0, args, "symplectic", scheduled=(schedule, rates)
+        )
         return positions
 
     @jax.jit
@@ -162,13 +166,13 @@ def diffrax_overhead(batch: int, dt: float, repeats: int) -> dict:
             t0 = save_ts[k]
             h = (save_ts[k + 1] - t0) / grid.substeps
 
-            def euler(i, y):
-                x, v = y
-                _, a = vector_field(t0 + i * h, y, args)
+            def euler(i, carry):
+                (x, v), s = carry
+                _, a = rates(t0 + i * h, (x, v), args, s)
                 v = v + h * a
-                return x + h * v, v
+                return (x + h * v, v), schedule(t0 + (i + 1) * h, args)
 
-            y = jax.lax.fori_loop(0, grid.substeps, euler, y)
+            y, _ = jax.lax.fori_loop(0, grid.substeps, euler, (y, schedule(t0, args)))
             return y, y[0]
 
         _, saved = jax.lax.scan(interval, y0, jnp.arange(grid.num_saves))

@@ -17,6 +17,12 @@ class AbstractController(eqx.Module):
     be computed ahead, then `actuation(t, plan)` at every step; what it returns is what the
     body's dynamics take as actuation (for lattices, a table of spring rest lengths).
 
+    A controller whose actuation is a cheap choice made from the time alone (which regime or
+    rule is active) followed by work on the plan can say so by overriding `schedule` and
+    `actuation_from`: the batched fast path then makes the choice once per controller and
+    step and carries it into the step, instead of XLA repeating it for every entry of the
+    actuation it selects (for a lattice, every spring of every regime table).
+
     A subclass that sets `supports_batch_last = True` promises that `actuation` also works on
     a batch of controllers stacked with the batch as the *last* axis of every array field
     (and of the plan): index only leading axes and let elementwise arithmetic broadcast. The
@@ -32,6 +38,17 @@ class AbstractController(eqx.Module):
     @abc.abstractmethod
     def actuation(self, t: Float[Array, ""], plan: Any) -> Any:
         """The actuation at time `t`."""
+
+    def schedule(self, t: Float[Array, ""]) -> Any:
+        """The choice `actuation` makes from the time `t` alone (e.g. the active regime's
+        index): small per controller, computed once per step. Default: `t` itself."""
+        return t
+
+    def actuation_from(self, schedule: Any, plan: Any) -> Any:
+        """The actuation for `schedule(t)`: `actuation_from(schedule(t), plan)` equals
+        `actuation(t, plan)`. Default: `actuation(schedule, plan)` (with the default
+        `schedule`, the time)."""
+        return self.actuation(schedule, plan)
 
     def smoothed(self, width: float) -> "AbstractController":
         """The same controller with its discrete switches blended over `width` seconds, for

@@ -99,9 +99,19 @@ class Regimes(AbstractController):
         return jax.vmap(body.rest_length_matrix)(self.shapes(body))
 
     def active(self, t: Float[Array, ""]) -> Int[Array, ""]:
-        """Index of the regime active at time `t`."""
+        """Index of the regime active at time `t` (batch-last controllers give one per
+        controller)."""
         phase = jnp.mod(t, self.t_per)
-        return jnp.argmin(jnp.abs(phase - self.times))
+        # A chain of compares rather than an argmin over the regimes, so that it is
+        # elementwise for a batch-last stack of controllers too.
+        best = jnp.abs(phase - self.times[0])
+        index = jnp.zeros(jnp.shape(best), dtype=jnp.int32)
+        for c in range(1, self.num_regimes):
+            dist = jnp.abs(phase - self.times[c])
+            nearer = dist < best
+            best = jnp.where(nearer, dist, best)
+            index = jnp.where(nearer, c, index)
+        return index
 
     def smoothed(self, width: float) -> "Regimes":
         """This controller with its regime switches blended over about `width` seconds (see
@@ -111,18 +121,21 @@ class Regimes(AbstractController):
         )
 
     def actuation(self, t, plan: Float[Array, "C n n"]) -> Float[Array, "n n"]:
-        phase = jnp.mod(t, self.t_per)
+        return self.actuation_from(self.schedule(t), plan)
+
+    def schedule(self, t):
+        """The active regime's index (hard switch); the time itself when `blend > 0`, whose
+        cross-fade needs every regime's distance."""
+        return t if self.blend > 0 else self.active(t)
+
+    def actuation_from(self, schedule, plan):
         if self.blend > 0:
-            return self._blended(phase, plan)
+            return self._blended(jnp.mod(schedule, self.t_per), plan)
         # A chain of selects rather than an index: under vmap an index per controller would
         # become a gather, which is slow on CPU; selects stay elementwise.
-        best = jnp.abs(phase - self.times[0])
         table = plan[0]
         for c in range(1, self.num_regimes):
-            dist = jnp.abs(phase - self.times[c])
-            nearer = dist < best
-            best = jnp.where(nearer, dist, best)
-            table = jnp.where(nearer, plan[c], table)
+            table = jnp.where(schedule == c, plan[c], table)
         return table
 
     def _blended(self, phase, plan):
