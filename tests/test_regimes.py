@@ -2,6 +2,7 @@
 
 import itertools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.random as jr
@@ -85,6 +86,49 @@ def test_active_regime_is_the_nearest_time_modulo_the_period():
         np.testing.assert_array_equal(
             np.asarray(c.actuation(jnp.asarray(t), plan)), np.asarray(plan[regime])
         )
+
+
+@pytest.mark.parametrize("blend", [0.0, 0.05])
+def test_schedule_then_actuation_from_is_the_actuation_for_a_batch_last_stack(blend):
+    """The split the batched solver carries from step to step (`schedule`, once per controller
+    and step; `actuation_from`, the table) composes to `actuation`, bitwise, both for one
+    controller and for a stack of controllers with the batch as the last axis of every array
+    (ties between equally near regimes go to the lower index in both)."""
+    space = jm.RegimesSpace(num_regimes=4, t_per=1.0)
+    controllers = jax.vmap(lambda k: space.sample(key=k))(jr.split(jr.key(3), 12))
+    controllers = eqx.tree_at(lambda c: c.times, controllers, controllers.times.at[0, 1].set(0.5))
+    controllers = eqx.tree_at(lambda c: c.times, controllers, controllers.times.at[0, 2].set(0.5))
+    controllers = jax.vmap(lambda c: c.smoothed(blend))(controllers)
+    plans = jax.vmap(lambda c: c.prepare(CUBE))(controllers)
+    last = lambda tree: jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -1), tree)
+    stacked, stacked_plans = last(controllers), last(plans)
+    for t in [0.0, 0.3, 0.5, 0.77, 1.5, 4.99]:
+        t = jnp.asarray(t)
+        expected = jax.vmap(lambda c, p, t=t: c.actuation(t, p))(controllers, plans)
+        one = jax.vmap(lambda c, p, t=t: c.actuation_from(c.schedule(t), p))(controllers, plans)
+        batched = stacked.actuation_from(stacked.schedule(t), stacked_plans)
+        np.testing.assert_array_equal(np.asarray(one), np.asarray(expected))
+        np.testing.assert_array_equal(
+            np.asarray(jnp.moveaxis(batched, -1, 0)), np.asarray(expected)
+        )
+    if blend == 0.0:
+        # Regime times 0.5 and 0.5 tie at t = 0.5: the lower index wins.
+        assert int(jax.tree_util.tree_map(lambda a: a[0], controllers).active(0.5)) == 1
+
+
+def test_the_default_schedule_is_the_time_itself():
+    class Ramp(jm.AbstractController):
+        rate: float = 2.0
+
+        def prepare(self, body):
+            return None
+
+        def actuation(self, t, plan):
+            return self.rate * t
+
+    ramp = Ramp()
+    assert ramp.schedule(0.25) == 0.25
+    assert ramp.actuation_from(ramp.schedule(0.25), None) == ramp.actuation(0.25, None) == 0.5
 
 
 def test_aperiodic_controller_never_wraps():
