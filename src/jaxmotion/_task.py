@@ -86,14 +86,11 @@ class Task(eqx.Module):
         worst) rather than raising or returning NaN; count them with
         `jnp.isneginf(fitness)`.
 
-        Results are bitwise reproducible: the same batch on the same devices gives the same
-        fitness every time, and a controller's fitness does not depend on its place in the
-        batch. Across batch sizes it can move by float32 rounding (which a chaotic motion
-        may amplify), where XLA lays out a body's loops differently for different widths:
-        measured on 2 cores, the cube and the chair score bitwise the same at every batch
-        size from 1 to 1,200 on 1 or 2 devices, the pyramid from 40 controllers per device
-        on, Rex from 24. Batches under 16 are padded to 16, which is why they cost about as
-        much as 16.
+        Results are bitwise reproducible: the same batch gives the same fitness every time,
+        whatever the number of devices, and a controller's fitness depends neither on its
+        place in the batch nor on the size of the batch it comes in (so a search's best
+        controller replays alone to the very fitness the search recorded). Batches under 16
+        are padded to 16, which is why they cost about as much as 16.
         """
         batch = _batch_size(params)
         params = _replicated(params)
@@ -196,8 +193,7 @@ def _local_fitness(task: Task, params):
 # contact-rich motion amplifies, and batches shorter than 16 compile to different code
 # again. Every device's share is therefore at least `_MIN_SHARE` and a whole number of
 # `_LANES` groups: a controller's result is then bitwise the same whatever the batch it comes
-# in and the number of devices, except where XLA splits a body's loops differently for
-# different widths (see `Task.evaluate`; results then agree to float32 rounding).
+# in and the number of devices (with the compiler options of `jaxmotion._sim.compile`).
 #
 # A share that is a power of two from `_SLOW_POWER` up gets one more group: the state's
 # component arrays then sit at power-of-two strides and evict each other from the cache.

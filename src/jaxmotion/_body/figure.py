@@ -546,10 +546,17 @@ def _nodes(vectors, like):
 
 
 def _sum_leading(x):
-    """Sum over the leading (node or rod) axis; a constant 0.0 stays 0.0."""
+    """Sum over the leading (node or rod) axis; a constant 0.0 stays 0.0. Written as adds of
+    rows, which XLA fuses into the elementwise loops around them (a reduction would be a loop
+    of its own, see `jaxmotion._sim.compile`)."""
     if s.const(x):
         return 0.0
-    return (np if isinstance(x, np.ndarray) else jnp).sum(x, axis=0)
+    if isinstance(x, np.ndarray):
+        return x.sum(axis=0)
+    total = x[0]
+    for k in range(1, x.shape[0]):
+        total = total + x[k]
+    return total
 
 
 def _column(values, n, like):

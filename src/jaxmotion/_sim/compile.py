@@ -8,13 +8,18 @@ from collections.abc import Callable
 import equinox as eqx
 import jax
 
-# XLA's CPU backend writes fused loops either with its newer "fusion emitters" (the default)
-# or with its classic loop emitters. A simulation step is thousands of scalar operations
-# batched over controllers; for it the classic emitters compile about a third faster and run
-# as fast or faster. Measured on 2 cores (`benchmarks/figures.py`, `benchmarks/evaluate.py`):
-# Rex's `Task.evaluate` compiles in 7.5 s instead of 11 s, the cube's in 3.5 s instead of
-# 4.8 s. An XLA that no longer knows the option compiles with its defaults.
-_PREFERRED = {"xla_cpu_use_fusion_emitters": False}
+# XLA's CPU backend hands some fusions to the YNNPACK library: reductions, element-wise
+# blocks and matrix products above a size. Its kernels tile by the array sizes, so the same
+# controller's arithmetic was grouped, and rounded, differently in batches of different
+# widths (the pyramid's rest lengths from 40 controllers per device on, say), and a chaotic
+# motion amplified the last bit into a different motion: a search's best controller replayed
+# alone (a batch of 16) to another fitness than the search recorded. Without it, every body
+# scores bitwise the same at every batch size (measured: widths 1 to 1,200, on 1 and 2
+# devices), at the same speed; the figures' sums over rods are written as explicit adds so
+# that they lose nothing by it. (XLA's classic loop emitters, used here before, made Rex's
+# results depend on the width too, and now run the figures 15-35% slower.) An XLA that no
+# longer knows the option compiles with its defaults.
+_PREFERRED = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
 
 @functools.cache

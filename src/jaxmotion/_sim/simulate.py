@@ -187,7 +187,7 @@ def _solve(
     term = dfx.ODETerm(vector_field)
     save_ts = jnp.asarray(grid.save_times, dtype=jnp.result_type(float))
     observe = (lambda x: x) if observe is None else observe
-    positions = lambda t, y, args: observe(y[0])
+    sample = lambda t, y, args: observe(y[0])  # observables depend on positions alone
     if solver == "symplectic":
         # One diffrax step per save interval, each made of `substeps` physics steps.
         sol = dfx.diffeqsolve(
@@ -198,7 +198,7 @@ def _solve(
             dt0=None,
             y0=y0,
             args=args,
-            saveat=dfx.SaveAt(t0=True, steps=True, fn=positions),
+            saveat=dfx.SaveAt(t0=True, steps=True, fn=sample),
             stepsize_controller=dfx.StepTo(save_ts),
             max_steps=grid.num_saves,
             throw=False,
@@ -216,7 +216,7 @@ def _solve(
             dt0=grid.dt,
             y0=y0,
             args=args,
-            saveat=dfx.SaveAt(ts=save_ts, fn=positions),
+            saveat=dfx.SaveAt(ts=save_ts, fn=sample),
             stepsize_controller=dfx.PIDController(rtol=rtol, atol=atol),
             max_steps=max_steps,
             throw=False,
