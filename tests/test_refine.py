@@ -76,13 +76,20 @@ def test_gradients_agree_with_central_differences(term, x64):
     assert grad.reflexes is None and grad.t_per is None  # discrete and fixed: not trained
 
 
+# The gradient program computes the same function as `evaluate`, but XLA fuses its forward
+# pass differently (it keeps what the backward pass needs), so float32 values agree to
+# rounding rather than bitwise; any smoothing at all moves them by orders of magnitude more.
+POSED_ATOL = 1e-5
+
+
 def test_width_zero_is_the_problem_as_posed():
     task = task_for({"forward": 1.0, "upright": -10.0}, duration=1.0)
     params = task.sample(20, key=jr.key(1))
     fitness, _ = jm.fitness_and_gradient(task, params, smoothing=jm.Smoothing())
-    np.testing.assert_array_equal(np.asarray(fitness), np.asarray(task.evaluate(params)))
+    posed = np.asarray(task.evaluate(params))
+    np.testing.assert_allclose(np.asarray(fitness), posed, rtol=0, atol=POSED_ATOL)
     smoothed, _ = jm.fitness_and_gradient(task, params, smoothing=SMOOTH)
-    assert np.any(np.asarray(smoothed) != np.asarray(fitness))  # smoothing does something
+    assert np.max(np.abs(np.asarray(smoothed) - posed)) > 100 * POSED_ATOL  # smoothing acts
 
 
 def test_refine_improves_the_smoothed_objective_from_a_fixed_start(x64):

@@ -68,7 +68,7 @@ def compare_one(experiment: Experiment, seed: int, settings: CompareSettings, co
     first = parallel_hill_climb(task, key=key, evaluations=searched, size=size, batch=batch)
     k = min(settings.top_k, size)
     start = jax.tree_util.tree_map(lambda x: x[:k], first.state.population)
-    per_step = k * (cost + (0 if settings.smoothing.is_identity else 1))
+    per_step = k * (cost + 1)  # a gradient and a true evaluation per controller and step
     steps = int((budget - searched) // per_step)
     _, refined = refine(
         task,

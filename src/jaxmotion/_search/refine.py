@@ -43,10 +43,6 @@ class Smoothing(eqx.Module):
                 f"Smoothing.friction_velocity = {v!r}; allowed: None or a number > 0 (m/s)"
             )
 
-    @property
-    def is_identity(self) -> bool:
-        return self.regime_width == 0 and self.friction_velocity is None
-
     def task(self, task: Task) -> Task:
         """The task with its world's friction smoothed."""
         if self.friction_velocity is None:
@@ -101,7 +97,7 @@ def _value_and_grad(task: Task, params, spec, smoothing: Smoothing):
     # One device: reverse-mode through diffrax inside `shard_map` fails in equinox's
     # closure conversion (it sees the per-device shapes), so gradients are not yet sharded.
     # Padded as `Task.evaluate` pads one device's share (whole lane groups, at least 16),
-    # so the forward values are identical to its single-device ones.
+    # so that the forward pass runs the same widths as evaluate's.
     batch = _batch_size(params)
     padded = _padded(params, _share(batch))
     trainable, frozen = eqx.partition(padded, spec)
@@ -213,8 +209,12 @@ def refine(
     best_fitness = jnp.full(_batch_size(params), -jnp.inf)
     parts, skipped = [], 0
     for k in range(steps):
-        smoothed_fitness, grads = _value_and_grad(task, params, spec, smoothing)
-        fitness = smoothed_fitness if smoothing.is_identity else task.evaluate(params)
+        _, grads = _value_and_grad(task, params, spec, smoothing)
+        # The true fitness from `evaluate` itself, even unsmoothed: the gradient program
+        # computes the same function, but XLA fuses its forward pass differently (it keeps
+        # what the backward pass needs), so its values can differ in the last bits, and the
+        # controllers returned must re-evaluate to exactly the fitness recorded for them.
+        fitness = task.evaluate(params)
         parts.append(History(np.asarray(fitness), np.full(fitness.shape[0], k)))
         params, opt_state, best, best_fitness, bad = _update(
             optimizer, task.space, spec, params, grads, opt_state, fitness, best, best_fitness
@@ -222,8 +222,7 @@ def refine(
         skipped += int(bad)
         if callback is not None:
             callback(k + 1, params, np.asarray(fitness))
-    # The controllers after the last step need their fitness only, not another gradient
-    # (`evaluate` computes the very values the gradient call would, see `_value_and_grad`).
+    # The controllers after the last step need their fitness only, not another gradient.
     fitness = task.evaluate(params)
     parts.append(History(np.asarray(fitness), np.full(fitness.shape[0], steps)))
     best, best_fitness = _keep_better(params, fitness, best, best_fitness)
