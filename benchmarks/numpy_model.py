@@ -3,7 +3,8 @@
 
 The same physics, step for step: springs with tension `k (l - L) + d dl/dt`, gravity, the
 penalty floor with regularised (optionally anisotropic) Coulomb friction, the regimes
-controller's nearest-regime-time rest lengths, and semi-implicit Euler on the same time grid.
+controller's nearest-regime-time rest lengths chosen at each control tick, and semi-implicit
+Euler on the same time grid.
 The controllers' per-regime rest lengths come from `Regimes.prepare` (the deformations are
 not what is being timed). State is laid out batch-last, `(3, n, batch)`, so every NumPy call
 works on whole batches; springs are gathered and forces scattered with `np.add.at`.
@@ -34,7 +35,7 @@ def prepare(task: jm.Task, params, dtype=np.float64):
         times=np.asarray(params.times, dtype).T,  # (C, B)
         t_per=np.asarray(params.t_per, dtype),  # (B,)
         world=task.world,
-        grid=time_grid(task.duration, task.dt, task.save_dt),
+        grid=time_grid(task.duration, task.dt, task.save_dt, task.control_dt),
         dtype=dtype,
     )
 
@@ -56,9 +57,10 @@ def simulate(model) -> np.ndarray:
     h = dtype(grid.dt)
     eps = dtype(world.friction_velocity)
     direction = world.friction_direction
-    save_ts = grid.save_times.astype(dtype)
+    control_dt = dtype(grid.control_dt)
     for step in range(grid.num_steps):
-        t = save_ts[step // grid.substeps] + dtype(step % grid.substeps) * h
+        # The regime is chosen at each control tick (every `substeps` steps) and held.
+        t = dtype(step // grid.substeps) * control_dt
         phase = np.mod(t, t_per)
         best = np.abs(phase - times[0])
         length0 = rest[0]

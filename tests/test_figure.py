@@ -85,8 +85,8 @@ class PrescribedJoints(jm.AbstractController):
         del body
         return None
 
-    def actuation(self, t, plan):
-        del plan
+    def actuation(self, t, state, plan):
+        del state, plan
         arg = self.omega * t + self.phase
         th = self.mid + self.amp * jnp.cos(arg)
         thd = -self.amp * self.omega * jnp.sin(arg)
@@ -108,7 +108,7 @@ class PrescribedJoints(jm.AbstractController):
     def angles(self, t):
         return self._curve(t, 0)
 
-    def rates(self, t):
+    def angle_rates(self, t):
         return self._curve(t, 1)
 
     def accelerations(self, t):
@@ -156,7 +156,7 @@ def swinging(figure, *, fraction=0.8, tau=0.05, phase=None):
 
 
 def start_of(figure, controller, **kw):
-    return figure.state(angles=controller.angles(0.0), rates=controller.rates(0.0), **kw)
+    return figure.state(angles=controller.angles(0.0), rates=controller.angle_rates(0.0), **kw)
 
 
 def flight_run(figure, controller, state, gravity=0.0):
@@ -305,7 +305,7 @@ def initial_motion(figure, controller, com, velocity, orientation, angular_veloc
     w = np.asarray(angular_velocity, dtype=float)
     speed = np.linalg.norm(w)
     ts = eps * np.arange(-2.0, 3.0)
-    angles = controller.angles(0.0) + controller.rates(0.0) * ts[:, None]
+    angles = controller.angles(0.0) + controller.angle_rates(0.0) * ts[:, None]
     points, centres, frames = [], [], []
     for t, th in zip(ts, angles, strict=True):
         turn = rotation(w, speed * t) if speed > 0 else np.eye(3)
@@ -572,7 +572,7 @@ def test_planar_chain_agrees_with_mujoco_and_the_numpy_reference(x64):
         CHAIN_MASSES,
         CHAIN_RADII,
         controller.angles,
-        controller.rates,
+        controller.angle_rates,
         controller.accelerations,
     )
     kwargs = dict(

@@ -47,6 +47,7 @@ def test_a_figure_config_builds_figure_time_bsr_and_serial_search():
         "climbers": 10,
         "generations": 4000,
         "reseed_every": 200,
+        "enrich": 0,
         "runs": 1,
     }
 

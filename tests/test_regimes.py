@@ -84,16 +84,22 @@ def test_active_regime_is_the_nearest_time_modulo_the_period():
     for t, regime in cases.items():
         assert int(c.active(jnp.asarray(t))) == regime, t
         np.testing.assert_array_equal(
-            np.asarray(c.actuation(jnp.asarray(t), plan)), np.asarray(plan[regime])
+            np.asarray(acting(c, jnp.asarray(t), plan)), np.asarray(plan[regime])
         )
 
 
+def acting(c, t, plan):
+    """The actuation held after a control tick at `t` (one controller, or a batch-last
+    stack)."""
+    return c.actuation(t, c.update(t, c.init(None, plan), None, plan), plan)
+
+
 @pytest.mark.parametrize("blend", [0.0, 0.05])
-def test_schedule_then_actuation_from_is_the_actuation_for_a_batch_last_stack(blend):
-    """The split the batched solver carries from step to step (`schedule`, once per controller
-    and step; `actuation_from`, the table) composes to `actuation`, bitwise, both for one
-    controller and for a stack of controllers with the batch as the last axis of every array
-    (ties between equally near regimes go to the lower index in both)."""
+def test_a_tick_on_a_batch_last_stack_acts_as_each_controller_alone(blend):
+    """The batched layout calls `update` (the regime chosen once per controller and tick) and
+    `actuation` (the table) on a stack of controllers with the batch as the last axis of
+    every array: bitwise what each controller gives alone (ties between equally near regimes
+    go to the lower index in both)."""
     space = jm.RegimesSpace(num_regimes=4, t_per=1.0)
     controllers = jax.vmap(lambda k: space.sample(key=k))(jr.split(jr.key(3), 12))
     controllers = eqx.tree_at(lambda c: c.times, controllers, controllers.times.at[0, 1].set(0.5))
@@ -104,31 +110,43 @@ def test_schedule_then_actuation_from_is_the_actuation_for_a_batch_last_stack(bl
     stacked, stacked_plans = last(controllers), last(plans)
     for t in [0.0, 0.3, 0.5, 0.77, 1.5, 4.99]:
         t = jnp.asarray(t)
-        expected = jax.vmap(lambda c, p, t=t: c.actuation(t, p))(controllers, plans)
-        one = jax.vmap(lambda c, p, t=t: c.actuation_from(c.schedule(t), p))(controllers, plans)
-        batched = stacked.actuation_from(stacked.schedule(t), stacked_plans)
-        np.testing.assert_array_equal(np.asarray(one), np.asarray(expected))
+        expected = jax.vmap(lambda c, p, t=t: acting(c, t, p))(controllers, plans)
+        initial = last(jax.vmap(lambda c, p: c.init(None, p))(controllers, plans))
+        ticked = stacked.update(t, initial, None, stacked_plans)
+        batched = stacked.actuation(t, ticked, stacked_plans)
         np.testing.assert_array_equal(
             np.asarray(jnp.moveaxis(batched, -1, 0)), np.asarray(expected)
         )
+        if blend == 0.0:
+            # The regime chosen at the tick is what `active` says.
+            np.testing.assert_array_equal(
+                np.asarray(ticked.discrete),
+                np.asarray(jax.vmap(lambda c, t=t: c.active(t))(controllers)),
+            )
     if blend == 0.0:
         # Regime times 0.5 and 0.5 tie at t = 0.5: the lower index wins.
         assert int(jax.tree_util.tree_map(lambda a: a[0], controllers).active(0.5)) == 1
 
 
-def test_the_default_schedule_is_the_time_itself():
+def test_a_controller_without_state_runs_on_the_default_protocol():
+    """A controller that only defines `prepare` and `actuation` carries no state: `init`
+    gives an empty `ControllerState` and a tick leaves it unchanged."""
+
     class Ramp(jm.AbstractController):
         rate: float = 2.0
 
         def prepare(self, body):
             return None
 
-        def actuation(self, t, plan):
+        def actuation(self, t, state, plan):
             return self.rate * t
 
     ramp = Ramp()
-    assert ramp.schedule(0.25) == 0.25
-    assert ramp.actuation_from(ramp.schedule(0.25), None) == ramp.actuation(0.25, None) == 0.5
+    state = ramp.init(None, None)
+    assert state == jm.ControllerState(None, None)
+    assert ramp.update(0.25, state, None, None) == state
+    assert ramp.actuation(0.25, state, None) == 0.5
+    assert not Ramp.reads_senses and ramp.rates(0.25, state, None) is None
 
 
 def test_aperiodic_controller_never_wraps():

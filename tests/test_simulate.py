@@ -229,6 +229,7 @@ def test_adaptive_solver_out_of_steps_is_flagged():
         (dict(dt=0.0), r"dt = 0.0; allowed"),
         (dict(dt=2.0), r"dt = 2.0 is longer than duration = 1.0"),
         (dict(save_dt=1e-4), r"save_dt = 0.0001 is shorter than dt = 0.001"),
+        (dict(control_dt=5e-4), r"control_dt = 0.0005 is shorter than dt = 0.001"),
         (dict(solver="rk4"), r"solver = 'rk4'; allowed: one of 'symplectic', 'tsit5', 'dopri5'"),
     ],
 )
@@ -240,14 +241,28 @@ def test_bad_simulation_arguments_raise_before_compiling(kwargs, message):
         jm.simulate(jm.lattices.cube(), None, jm.World(), duration, **args)
 
 
-def test_time_grid_fills_the_duration_with_whole_steps():
+def test_time_grid_fills_the_duration_with_whole_steps_and_refuses_to_round():
     from jaxmotion._sim.simulate import time_grid
 
-    grid = time_grid(3.15, 1e-3, 0.02)
-    assert grid.num_saves * grid.save_dt == pytest.approx(3.15)
-    assert grid.num_steps * grid.dt == pytest.approx(3.15)
-    assert abs(grid.dt - 1e-3) < 1e-4 and abs(grid.save_dt - 0.02) < 2e-3
-    tr = jm.simulate(jm.lattices.cube(), None, jm.World(), 0.42, dt=1e-3, save_dt=0.1)
+    grid = time_grid(3.15, 1e-3, 0.035)
+    assert (grid.num_ticks, grid.substeps, grid.save_every, grid.num_saves) == (3150, 1, 35, 90)
+    # The default save interval is the longest whole number of steps up to 20 ms that
+    # divides the duration (3150 steps: 18).
+    assert time_grid(3.15, 1e-3).save_every == 18
+    assert time_grid(5.0, 4e-3).save_every == 5
+    grid = time_grid(1.0, 1e-3, 0.02, control_dt=4e-3)
+    assert (grid.num_ticks, grid.substeps, grid.save_every) == (250, 4, 5)
+    # Nothing is rounded silently: a sample interval, control period or duration that is not
+    # a whole number of the shorter one is refused, naming both and the nearest that are.
+    with pytest.raises(ValueError, match=r"save_dt = 0.0045 is not a whole number of dt = 0.001"):
+        time_grid(1.0, 1e-3, 0.0045)
+    with pytest.raises(ValueError, match=r"duration = 3.15 is not a whole number of save_dt"):
+        time_grid(3.15, 1e-3, 0.02)
+    with pytest.raises(ValueError, match=r"duration = 1.0005 is not a whole number of dt"):
+        time_grid(1.0005, 1e-3)
+    with pytest.raises(ValueError, match=r"control_dt = 0.0025 is not a whole number of dt"):
+        time_grid(1.0, 1e-3, control_dt=2.5e-3)
+    tr = jm.simulate(jm.lattices.cube(), None, jm.World(), 0.42, dt=1e-3, save_dt=0.105)
     np.testing.assert_allclose(np.asarray(tr.ts), np.linspace(0, 0.42, 5), atol=1e-6)
     assert tr.points.shape == (5, 8, 3)
 
@@ -259,7 +274,11 @@ def test_contact_and_frame_observables():
         @ np.array([[np.cos(0.3), 0, np.sin(0.3)], [0, 1, 0], [-np.sin(0.3), 0, np.cos(0.3)]]).T
     )
     tr = jm.simulate(
-        cube, None, jm.World(gravity=0.0, floor=False), 0.01, initial_state=cube.state(tilted)
+        cube,
+        None,
+        jm.World(gravity=0.0, floor=False),
+        0.01,
+        initial_state=cube.state(points=tilted),
     )
     # The frame of a rigidly rotated lattice is that rotation (rotation about +y by 0.3 rad).
     frame = np.asarray(tr.frame)[0]

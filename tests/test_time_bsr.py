@@ -104,6 +104,13 @@ def test_one_rule_has_no_splits():
 
 # ------------------------------------------------------------------ the schedule (section 2.3)
 
+
+def acting(c, t, plan=None):
+    """The actuation held after a control tick at `t` (works on a batch-last stack too)."""
+    state = c.update(t, c.init(None, plan), None, plan)
+    return c.actuation(t, state, plan)
+
+
 # Dyadic splits and period: phases of t and t + k t_per are computed exactly in float32.
 SCHEDULE = jm.TimeBSR(
     splits=[0.25, 0.5, 0.875],
@@ -120,7 +127,7 @@ def test_active_rule_owns_its_segment_of_every_period():
         for phase, rule in cases.items():
             t = jnp.asarray(period + phase)
             assert int(SCHEDULE.active(t)) == rule, (period, phase)
-            target, tau = SCHEDULE.actuation(t, None)
+            target, tau = acting(SCHEDULE, t)
             np.testing.assert_array_equal(np.asarray(target), np.asarray(SCHEDULE.targets[rule]))
             assert float(tau) == float(SCHEDULE.taus[rule])
 
@@ -142,7 +149,7 @@ def test_active_and_actuation_agree_with_a_reference_on_random_times():
     expected = np.searchsorted(splits, phase, side="right")
     active = np.asarray(jax.vmap(c.active)(jnp.asarray(ts)))
     np.testing.assert_array_equal(active, expected)
-    target, tau = jax.vmap(lambda t: c.actuation(t, None))(jnp.asarray(ts))
+    target, tau = jax.vmap(lambda t: acting(c, t))(jnp.asarray(ts))
     np.testing.assert_array_equal(np.asarray(target), targets[expected])
     np.testing.assert_array_equal(np.asarray(tau), taus[expected])
     # Periodic: one period later the same rule acts.
@@ -173,20 +180,20 @@ def test_one_rule_is_always_active():
     c = jm.TimeBSR(np.zeros(0), [[0.3, -0.2]], [0.05], t_per=1.0)
     ts = jnp.linspace(0.0, 3.0, 31)
     np.testing.assert_array_equal(np.asarray(jax.vmap(c.active)(ts)), 0)
-    target, tau = jax.vmap(lambda t: c.actuation(t, None))(ts)
+    target, tau = jax.vmap(lambda t: acting(c, t))(ts)
     np.testing.assert_allclose(np.asarray(target), np.broadcast_to([0.3, -0.2], (31, 2)))
     np.testing.assert_allclose(np.asarray(tau), 0.05)
 
 
 def test_batch_last_actuation_equals_vmap():
-    """`supports_batch_last`: one call on controllers stacked along the last axis gives what
-    `vmap` gives."""
+    """`supports_batch_last`: one tick and actuation on controllers stacked along the last axis
+    give what `vmap` gives."""
     batch = jax.tree_util.tree_map(lambda a: a[:8], sample_many(SPACE, seed=11))
     last = jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -1), batch)
     for t in (0.0, 0.37, 1.3, 2.9):
         t = jnp.asarray(t)
-        target, tau = last.actuation(t, None)
-        v_target, v_tau = jax.vmap(lambda c, t=t: c.actuation(t, None))(batch)
+        target, tau = acting(last, t)
+        v_target, v_tau = jax.vmap(lambda c, t=t: acting(c, t))(batch)
         np.testing.assert_array_equal(np.moveaxis(np.asarray(target), -1, 0), v_target)
         np.testing.assert_array_equal(np.asarray(tau), v_tau)
 

@@ -11,15 +11,22 @@ from . import figures as figures
 from . import lattices as lattices
 from ._body.base import AbstractBody as AbstractBody
 from ._body.base import AbstractDynamics as AbstractDynamics
+from ._body.base import BodyState as BodyState
 from ._body.figure import Figure as Figure
+from ._body.figure import FigurePositions as FigurePositions
+from ._body.figure import FigureVelocities as FigureVelocities
 from ._body.lattice import Lattice as Lattice
 from ._control.base import AbstractController as AbstractController
 from ._control.base import AbstractControllerSpace as AbstractControllerSpace
+from ._control.base import ControllerState as ControllerState
 from ._control.deformations import REFLEX_NAMES as REFLEX_NAMES
 from ._control.deformations import deform as deform
 from ._control.regimes import PERTURBATIONS as PERTURBATIONS
 from ._control.regimes import Regimes as Regimes
 from ._control.regimes import RegimesSpace as RegimesSpace
+from ._control.sense_bsr import BSRState as BSRState
+from ._control.sense_bsr import SenseBSR as SenseBSR
+from ._control.sense_bsr import SenseBSRSpace as SenseBSRSpace
 from ._control.time_bsr import TimeBSR as TimeBSR
 from ._control.time_bsr import TimeBSRSpace as TimeBSRSpace
 from ._devices import use_cpu_cores as use_cpu_cores
@@ -44,6 +51,7 @@ from ._search.serial import SerialSearchState as SerialSearchState
 from ._search.serial import serial_search as serial_search
 from ._sim.simulate import simulate as simulate
 from ._sim.trajectory import Observation as Observation
+from ._sim.trajectory import SimulationState as SimulationState
 from ._sim.trajectory import Trajectory as Trajectory
 from ._task import Task as Task
 from ._world import World as World
@@ -68,7 +76,12 @@ __all__ = [
     "AbstractController",
     "AbstractControllerSpace",
     "AbstractDynamics",
+    "BSRState",
+    "BodyState",
+    "ControllerState",
     "Figure",
+    "FigurePositions",
+    "FigureVelocities",
     "HillClimbState",
     "History",
     "Lattice",
@@ -80,9 +93,12 @@ __all__ = [
     "Regimes",
     "RegimesSpace",
     "SearchResult",
+    "SenseBSR",
+    "SenseBSRSpace",
     "SerialSearch",
     "SerialSearchResult",
     "SerialSearchState",
+    "SimulationState",
     "Smoothing",
     "Task",
     "TimeBSR",

@@ -1,11 +1,11 @@
-"""Reproduction checks: does a motion really leap, somersault, pirouette, shuffle, cartwheel
-or bound?
+"""Reproduction checks: does a motion really leap, somersault, pirouette, shuffle,
+cartwheel, bound or jump?
 
 Each check is a function of one (unbatched) `Trajectory` with documented thresholds, and
 returns a `CheckResult` that says which criteria held and what was measured. They encode the
 first paper's Figures 7-9 (the spider's leap, the poodle's somersault, the table's pirouette)
-and the second paper's Figures 9, 10 and 15 (Star-Man's shuffle and cartwheel, Cujo's
-bounding) as numbers a user can test their own results against.
+and the second paper's Figures 9, 10, 13 and 15 (Star-Man's shuffle, cartwheel and jump,
+Cujo's bounding) as numbers a user can test their own results against.
 """
 
 import math
@@ -297,6 +297,44 @@ def bound(
     return _result("bound", t["finite"], figures, criteria)
 
 
+def jump(
+    trajectory: Trajectory,
+    *,
+    body_length: float,
+    min_clearance_lengths: float = 0.25,
+    max_landing_tilt_degrees: float = 30.0,
+) -> CheckResult:
+    """A jump (the second paper's Table 4 jump phase, Figures 13 and 14): leaves the floor
+    entirely, high, and lands upright.
+
+    Passes when at some saved instant every point is at least `min_clearance_lengths` body
+    lengths above the floor (the highest height all points clear at once,
+    `max_t min_i z_i(t)`, the paper's jump measure), and at the end some point touches the
+    floor with the body's up axis within `max_landing_tilt_degrees` of vertical.
+    """
+    t = _single(trajectory, "jump")
+    body_length = _positive("body_length", body_length)
+    points = np.asarray(trajectory.points, float)
+    clearance = float(np.max(np.min(points[:, :, 2], axis=1)))
+    lengths = clearance / body_length
+    tilt = float(_tilt_degrees(t["frame"][-1:])[0])
+    landed = bool(np.any(t["contact"][-1]))
+    figures = {
+        "clearance_m": clearance,
+        "clearance_body_lengths": lengths,
+        "final_tilt_degrees": tilt,
+        "on_floor_at_end": float(landed),
+    }
+    criteria = {
+        f"every point clears the floor by >= {min_clearance_lengths:g} body lengths at once "
+        f"(got {lengths:.2f})": lengths >= min_clearance_lengths,
+        f"lands: a point on the floor at the end (got {landed})": landed,
+        f"upright at the end, within {max_landing_tilt_degrees:g} degrees (got {tilt:.1f})": tilt
+        <= max_landing_tilt_degrees,
+    }
+    return _result("jump", t["finite"], figures, criteria)
+
+
 CHECKS = {
     "leap": leap,
     "somersault": somersault,
@@ -304,4 +342,5 @@ CHECKS = {
     "shuffle": shuffle,
     "cartwheel": cartwheel,
     "bound": bound,
+    "jump": jump,
 }

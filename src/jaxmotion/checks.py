@@ -1,11 +1,12 @@
 """Motion checks: `leap`, `somersault`, `pirouette` (first paper) and `shuffle`,
-`cartwheel`, `bound` (second paper), each a function of a Trajectory that returns a
+`cartwheel`, `bound`, `jump` (second paper), each a function of a Trajectory that returns a
 `CheckResult` (see each function for its thresholds)."""
 
 from ._checks import CHECKS as CHECKS
 from ._checks import CheckResult as CheckResult
 from ._checks import bound as bound
 from ._checks import cartwheel as cartwheel
+from ._checks import jump as jump
 from ._checks import leap as leap
 from ._checks import pirouette as pirouette
 from ._checks import shuffle as shuffle
@@ -16,6 +17,7 @@ __all__ = [
     "CheckResult",
     "bound",
     "cartwheel",
+    "jump",
     "leap",
     "pirouette",
     "shuffle",

@@ -23,12 +23,43 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .._sim.trajectory import Observation
 from .._world import World, floor_force
 from . import _symbolic as s
-from .base import AbstractBody, AbstractDynamics
+from ._senses import scales as _scales
+from ._senses import signed as _signed
+from ._senses import unit as _unit
+from .base import AbstractBody, AbstractDynamics, BodyState
+
+
+class FigurePositions(NamedTuple):
+    """The positions half of a figure's state.
+
+    - `com`: the centre of mass, world (`(3,)`; planar figures `(2,)`: x, z).
+    - `orientation`: the root rod's orientation relative to the rest pose, a unit quaternion
+        `(w, x, y, z)` (planar figures `(2,)`: w, y).
+    - `angles`: `(num_free,)` the free joint angles, radians.
+    """
+
+    com: Float[Array, " c"]
+    orientation: Float[Array, " q"]
+    angles: Float[Array, " num_free"]
+
+
+class FigureVelocities(NamedTuple):
+    """The velocities half of a figure's state.
+
+    - `com_velocity`: velocity of the centre of mass (`(3,)`; planar `(2,)`: x, z).
+    - `momentum`: angular momentum about the centre of mass, world (`(3,)`; planar `(1,)`:
+        y).
+    - `angle_rates`: `(num_free,)` rates of the free joint angles, rad/s.
+    """
+
+    com_velocity: Float[Array, " c"]
+    momentum: Float[Array, " m"]
+    angle_rates: Float[Array, " num_free"]
 
 
 class Joint(NamedTuple):
@@ -291,13 +322,48 @@ class Figure(AbstractBody):
 
     @property
     def total_mass(self) -> float:
+        """Total mass, kg."""
         return float(sum(self.masses))
 
     @property
     def body_length(self) -> float:
-        """Size of the rest pose along the forward axis (the unit of "body lengths")."""
+        """Size of the rest pose along the forward axis, m (the unit of "body lengths")."""
         local = np.array(self.nodes) @ np.array(self.frame)
         return float(np.ptp(local[:, 0]))
+
+    @property
+    def size(self) -> float:
+        """The largest extent of the rest pose, m (the scale of the senses' ranges)."""
+        return float(np.max(np.ptp(np.array(self.nodes), axis=0)))
+
+    @property
+    def sense_names(self) -> tuple[str, ...]:
+        """The figure's senses (see `FigureDynamics.senses` for their ranges).
+
+        Planar figures, the second paper's Table 1: `angle[k]` for each free joint angle,
+        `contact[i]` (the floor's normal force) at each node (rod endpoint), `height` and
+        `vertical_velocity` of the centre of mass: `2 N + 2` for `N` rods with every joint
+        free.
+
+        3D figures, its section 4.2: `height`; `velocity_forward`, `_left`, `_up` of the
+        centre of mass, the root's angular velocity `spin_*` and the world's up vector
+        `up_*`, all in the figure's frame; `contact[i]` and `impulse[i]` (the collision
+        impulse: force times control period) at each node; `angle[k]` for each free angle.
+        """
+        angles = tuple(f"angle[{k}]" for k in range(self.num_free))
+        contacts = tuple(f"contact[{i}]" for i in range(self.num_nodes))
+        if self.planar:
+            return (*angles, *contacts, "height", "vertical_velocity")
+        axes = ("forward", "left", "up")
+        return (
+            "height",
+            *(f"velocity_{a}" for a in axes),
+            *(f"spin_{a}" for a in axes),
+            *(f"up_{a}" for a in axes),
+            *contacts,
+            *(f"impulse[{i}]" for i in range(self.num_nodes)),
+            *angles,
+        )
 
     # ------------------------------------------------------------------ kinematics
 
@@ -417,7 +483,7 @@ class Figure(AbstractBody):
 
     # ------------------------------------------------------------------ state
 
-    def initial_state(self):
+    def initial_state(self) -> BodyState:
         return self.state()
 
     def state(
@@ -429,7 +495,7 @@ class Figure(AbstractBody):
         angular_velocity: Float[ArrayLike, "3"] | None = None,
         angles: Float[ArrayLike, " num_free"] | None = None,
         rates: Float[ArrayLike, " num_free"] | None = None,
-    ):
+    ) -> BodyState:
         """A simulation state `(positions, velocities)`: by default the start pose, at rest,
         lowest node on the floor.
 
@@ -444,10 +510,11 @@ class Figure(AbstractBody):
             the angular momentum about the centre of mass, joint rates included.
         - `angles`, `rates`: free joint angles and their rates.
 
-        The positions are `(com, quaternion, angles)` and the velocities
-        `(com velocity, angular momentum, rates)`; a planar figure keeps only the x and z
-        components of the first two, the w and y of the quaternion and the y component of
-        the angular momentum.
+        The positions are `FigurePositions(com, orientation, angles)` and the velocities
+        `FigureVelocities(com_velocity, momentum, angle_rates)` (the angular momentum about
+        the centre of mass); a planar figure keeps only the x and z components of the
+        centre of mass and its velocity, the w and y of the quaternion and the y component
+        of the angular momentum.
         """
         f = self.num_free
         a = self.start_angles if angles is None else np.asarray(angles, dtype=float).reshape(f)
@@ -485,7 +552,7 @@ class Figure(AbstractBody):
             positions = (com, q, a)
             velocities = (v, momentum, ad)
         cast = lambda t: tuple(jnp.asarray(x, dtype=float) for x in t)
-        return cast(positions), cast(velocities)
+        return BodyState(FigurePositions(*cast(positions)), FigureVelocities(*cast(velocities)))
 
     def dynamics(self) -> "FigureDynamics":
         return FigureDynamics(self)
@@ -564,6 +631,13 @@ def _column(values, n, like):
     return np.asarray(values, dtype=like.dtype).reshape(n, *(1,) * np.ndim(like))
 
 
+def _rows_or_none(values, like):
+    """`_broadcast(values, like)`, or an empty `(0, *batch)` array for no values."""
+    if not values:
+        return jnp.zeros((0, *like.shape), dtype=like.dtype)
+    return _broadcast(values, like)
+
+
 def _rows(x, n):
     return [x[i] for i in range(n)]
 
@@ -571,6 +645,20 @@ def _rows(x, n):
 def _broadcast(values, like):
     xp = np if isinstance(like, np.ndarray) else jnp
     return xp.stack([xp.broadcast_to(xp.asarray(v, like.dtype), like.shape) for v in values])
+
+
+class _Contact(NamedTuple):
+    com: tuple
+    com_vel: tuple
+    angles: list
+    rates: list
+    state_rates: list
+    quat: tuple
+    rot: tuple
+    w_body: tuple
+    arm: tuple | None
+    forces: tuple | None
+    like: Array
 
 
 class FigureDynamics(AbstractDynamics):
@@ -622,9 +710,11 @@ class FigureDynamics(AbstractDynamics):
             state_rates.append(jnp.where(pushing, 0.0, r))
         return kin_angles, kin_rates, state_rates
 
-    def rates(self, state, actuation, world: World):
+    def _contact(self, positions, velocities, world: World):
+        """What the rates and the senses share (computed once when both are traced
+        together): the unpacked state, the root's rotation and angular velocity, and the
+        floor's force at every node with its lever arm about the centre of mass."""
         fig = self.figure
-        positions, velocities = state
         com, quat, angles, com_vel, momentum, rates = self._unpack(positions, velocities)
         kin_angles, kin_rates, state_rates = self._limits(angles, rates)
         all_a, all_r = fig._all_angles(_trig(kin_angles), kin_rates)
@@ -640,10 +730,10 @@ class FigureDynamics(AbstractDynamics):
         com_rel_vel, h = _barrier((com_rel_vel, h))
         rot = _barrier(s.quaternion_matrix(quat))
         w_body = _barrier(s.solve_symmetric(inertia, s.vsub(s.tmatvec(rot, momentum), h)))
-        # Contact at every node, all nodes at once (leading node axis): world positions and
-        # velocities relative to the com.
-        force, torque = s.ZERO, s.ZERO
+        arm = forces = None
         if world.floor:
+            # Contact at every node, all nodes at once (leading node axis): world positions
+            # and velocities relative to the com.
             rel = s.vsub(_nodes(pos, like), com_rel)
             rel_vel = s.vadd(s.cross(w_body, rel), s.vsub(_nodes(vel, like), com_rel_vel))
             arm = s.matvec(rot, rel)
@@ -651,15 +741,26 @@ class FigureDynamics(AbstractDynamics):
             vx, vy, vz = s.vadd(com_vel, s.matvec(rot, rel_vel))
             fx, fy, fz = floor_force(world, px, py, pz, vx, vy, vz)
             forces = (fx, 0.0 if fig.planar else fy, fz)
-            force = tuple(_sum_leading(f) for f in forces)
-            torque = tuple(_sum_leading(t) for t in s.cross(arm, forces))
+        return _Contact(
+            com, com_vel, angles, rates, state_rates, quat, rot, w_body, arm, forces, like
+        )
+
+    def rates(self, state, actuation, world: World) -> BodyState:
+        fig = self.figure
+        positions, _ = state
+        c = self._contact(*state, world)
+        force, torque = s.ZERO, s.ZERO
+        if c.forces is not None:
+            force = tuple(_sum_leading(f) for f in c.forces)
+            torque = tuple(_sum_leading(t) for t in s.cross(c.arm, c.forces))
         m = fig.total_mass
         acc = (
             s.mul(1.0 / m, force[0]),
             s.mul(1.0 / m, force[1]),
             s.sub(s.mul(1.0 / m, force[2]), world.gravity),
         )
-        q_rate = s.quaternion_rate(quat, w_body)
+        q_rate = s.quaternion_rate(c.quat, c.w_body)
+        angles, rates = c.angles, c.rates
         if actuation is None:
             angle_acc = [jnp.zeros_like(r) for r in rates]
         else:
@@ -668,8 +769,9 @@ class FigureDynamics(AbstractDynamics):
                 (target[i] - angles[i] - 2.0 * tau * rates[i]) / (tau * tau)
                 for i in range(fig.num_free)
             ]
-        pack = lambda values: _broadcast(values, like)
+        pack = lambda values: _broadcast(values, c.like)
         th = positions[2]
+        com_vel = c.com_vel
         if fig.planar:
             d_pos = (pack([com_vel[0], com_vel[2]]), pack([q_rate[0], q_rate[2]]))
             d_vel = (pack([acc[0], acc[2]]), pack([torque[1]]))
@@ -677,10 +779,63 @@ class FigureDynamics(AbstractDynamics):
             d_pos = (pack(com_vel), pack(q_rate))
             d_vel = (pack(acc), pack(torque))
         if fig.num_free:
-            d_th, d_thd = jnp.stack(state_rates), jnp.stack(angle_acc)
+            d_th, d_thd = jnp.stack(c.state_rates), jnp.stack(angle_acc)
         else:
             d_th, d_thd = jnp.zeros_like(th), jnp.zeros_like(th)
-        return (*d_pos, d_th), (*d_vel, d_thd)
+        return BodyState(FigurePositions(*d_pos, d_th), FigureVelocities(*d_vel, d_thd))
+
+    def senses(self, state, world: World, control_dt: float):
+        """The figure's senses, normalised to [0, 1] and clipped (`Figure.sense_names`).
+        With `size` the rest pose's largest extent, `M` the total mass, `g` the world's
+        gravity (9.81 m/s^2 without it) and `v = sqrt(2 g size)` (the speed of a fall
+        through the body's size):
+
+        - `angle[k]`: the free angle over its range `[lo, hi]`;
+        - `contact[i]`: the floor's normal force at node `i` over `[0, M g]` (the whole
+            weight);
+        - `impulse[i]` (3D): that force times the control period over `[0, M v]` (the
+            momentum of the whole body at speed `v`; with a penalty floor the collision
+            impulse is the force over the tick);
+        - `height`: the centre of mass's height over `[0, 2 size]`;
+        - `vertical_velocity` (planar), `velocity_*` (3D, figure frame): over `[-v, v]`;
+        - `spin_*` (3D): the root's angular velocity in the figure frame over
+            `[-2 v / size, 2 v / size]`;
+        - `up_*` (3D): the world's up axis in the figure frame, each over `[-1, 1]`.
+        """
+        fig = self.figure
+        c = self._contact(*state, world)
+        g, v_scale = _scales(world, fig.size)
+        weight = g * fig.total_mass
+        like = c.like
+        if c.forces is None:
+            fn = jnp.zeros((fig.num_nodes, *like.shape), dtype=like.dtype)
+        else:
+            fn = c.forces[2]
+        contact = jnp.clip(fn / weight, 0.0, 1.0)
+        ranges = fig.ranges
+        angles = [
+            _unit(a, float(lo), float(hi)) for (lo, hi), a in zip(ranges, c.angles, strict=True)
+        ]
+        height = _unit(c.com[2], 0.0, 2.0 * fig.size)
+        angles = _rows_or_none(angles, like)
+        if fig.planar:
+            tail = [height, _signed(c.com_vel[2], v_scale)]
+            return jnp.concatenate([angles, contact, _broadcast(tail, like)])
+        # The figure frame F = R frame0: a world vector u reads frame0^T R^T u in it.
+        frame0 = fig.frame
+        to_figure = lambda u: s.tmatvec(frame0, s.tmatvec(c.rot, u))
+        velocity = to_figure(c.com_vel)
+        spin = s.tmatvec(frame0, c.w_body)
+        up = s.tmatvec(frame0, c.rot[2])
+        w_scale = 2.0 * v_scale / fig.size
+        head = [
+            height,
+            *(_signed(x, v_scale) for x in velocity),
+            *(_signed(x, w_scale) for x in spin),
+            *(_signed(x, 1.0) for x in up),
+        ]
+        impulse = jnp.clip(fn * control_dt / (fig.total_mass * v_scale), 0.0, 1.0)
+        return jnp.concatenate([_broadcast(head, like), contact, impulse, angles])
 
     def observe(self, positions, world: World) -> Observation:
         fig = self.figure

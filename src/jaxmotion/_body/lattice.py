@@ -11,7 +11,10 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from .._sim.trajectory import Observation
 from .._world import World, floor_force
 from ._frame import polar_rotation
-from .base import AbstractBody, AbstractDynamics
+from ._senses import scales as _scales
+from ._senses import signed as _signed
+from ._senses import unit as _unit
+from .base import AbstractBody, AbstractDynamics, BodyState
 
 
 def _concrete(*xs) -> bool:
@@ -100,13 +103,14 @@ class Lattice(AbstractBody):
         return self.points.shape[0]
 
     @property
-    def total_mass(self) -> Float[Array, ""]:
-        return jnp.sum(self.masses)
+    def total_mass(self) -> float:
+        """Total mass, kg."""
+        return float(np.sum(np.asarray(self.masses, dtype=np.float64)))
 
     @property
     def com(self) -> Float[Array, "3"]:
         """Centre of mass of the rest shape."""
-        return jnp.sum(self.points * self.masses[:, None], axis=0) / self.total_mass
+        return jnp.sum(self.points * self.masses[:, None], axis=0) / jnp.sum(self.masses)
 
     @property
     def extent(self) -> Float[Array, "3"]:
@@ -115,9 +119,28 @@ class Lattice(AbstractBody):
         return jnp.max(local, axis=0) - jnp.min(local, axis=0)
 
     @property
-    def body_length(self) -> Float[Array, ""]:
-        """Size of the rest shape along its forward axis (the unit of "body lengths")."""
-        return self.extent[0]
+    def body_length(self) -> float:
+        """Size of the rest shape along its forward axis, m (the unit of "body lengths")."""
+        return float(np.asarray(self.extent)[0])
+
+    @property
+    def size(self) -> float:
+        """The largest extent of the rest shape, m (the scale of the senses' ranges)."""
+        return float(np.max(np.asarray(self.extent)))
+
+    @property
+    def sense_names(self) -> tuple[str, ...]:
+        """The lattice's senses (the kinds the second paper gives 3D figures, section 4.2):
+        `height` of the centre of mass; its `velocity_forward`, `_left`, `_up` and the
+        world's up vector `up_forward`, `_left`, `_up` in the lattice's frame; the normal
+        `contact[i]` force on each mass. See `LatticeDynamics.senses` for their ranges."""
+        axes = ("forward", "left", "up")
+        return (
+            "height",
+            *(f"velocity_{a}" for a in axes),
+            *(f"up_{a}" for a in axes),
+            *(f"contact[{i}]" for i in range(self.num_masses)),
+        )
 
     def rest_length_matrix(self, shape: Float[ArrayLike, "num_masses 3"] | None = None):
         """Dense `(num_masses, num_masses)` table of rest lengths for a deformed rest shape.
@@ -139,23 +162,25 @@ class Lattice(AbstractBody):
         table = jnp.ones((n, n), dtype=rest.dtype)
         return table.at[i, j].set(rest).at[j, i].set(rest)
 
-    def initial_state(self):
+    def initial_state(self) -> BodyState:
         return self.state()
 
     def state(
         self,
+        *,
         points: Float[ArrayLike, "num_masses 3"] | None = None,
         velocities: Float[ArrayLike, "num_masses 3"] | None = None,
-    ):
+    ) -> BodyState:
         """A simulation state for `simulate(..., initial_state=...)`: the masses at `points`
-        (default: the rest shape) moving with `velocities` (default: at rest)."""
+        (default: the rest shape) moving with `velocities` (default: at rest). Its
+        `positions` and `velocities` are `(3, num_masses)` arrays (components first)."""
         x = jnp.transpose(self.points if points is None else jnp.asarray(points, dtype=float))
         v = jnp.zeros_like(x) if velocities is None else jnp.transpose(jnp.asarray(velocities))
         if x.shape != (3, self.num_masses) or v.shape != x.shape:
             raise ValueError(
                 f"Lattice.state needs points and velocities of shape ({self.num_masses}, 3)"
             )
-        return x, v.astype(x.dtype)
+        return BodyState(x, v.astype(x.dtype))
 
     def dynamics(self) -> "LatticeDynamics":
         n = self.num_masses
@@ -173,6 +198,7 @@ class Lattice(AbstractBody):
             no_spring=no_spring,
             rest_rel=rest_rel,
             frame0=self.frame,
+            size=jnp.max(self.extent),
         )
 
 
@@ -190,6 +216,7 @@ class LatticeDynamics(AbstractDynamics):
     no_spring: Float[Array, "n n"]
     rest_rel: Float[Array, "3 n"]
     frame0: Float[Array, "3 3"]
+    size: Float[Array, ""]
 
     supports_batch_last: ClassVar[bool] = True
 
@@ -226,18 +253,19 @@ class LatticeDynamics(AbstractDynamics):
         ax = (fx + cx) * inv_m
         ay = (fy + cy) * inv_m
         az = (fz + cz) * inv_m - world.gravity
-        return v, jnp.stack([ax, ay, az])
+        return BodyState(v, jnp.stack([ax, ay, az]))
 
-    def observe(self, positions, world: World) -> Observation:
-        # Written for positions (3, n, *batch) with any trailing batch axes (time, controllers):
-        # everything is elementwise over them, with explicit sums over the masses, so it
-        # vectorises and gives each sample the same rounding whatever the batch.
-        x = positions
-        extra = x.ndim - 2
+    def _com(self, x):
+        """Mass-weighted mean over the masses of `(3, n, *batch)`: `(3, *batch)`."""
         n = x.shape[1]
         masses = [self.masses[k] for k in range(n)]
-        total = sum(masses)
-        com = sum(masses[k] * x[:, k] for k in range(n)) / total  # (3, *batch)
+        return sum(masses[k] * x[:, k] for k in range(n)) / sum(masses)
+
+    def _frame(self, x, com):
+        """The body frame `(3, 3, *batch)` of masses at `x` with centre of mass `com`: the
+        rotation that best maps the rest shape onto them, applied to the rest frame."""
+        n = x.shape[1]
+        masses = [self.masses[k] for k in range(n)]
         rel = x - com[:, None]
         # h[a, c] = sum_k m_k rel[a, k] rest_rel[c, k]
         h = jnp.stack(
@@ -253,7 +281,7 @@ class LatticeDynamics(AbstractDynamics):
         )
         rotation = polar_rotation(h)
         # frame = rotation @ frame0, with the batch axes trailing.
-        frame = jnp.stack(
+        return jnp.stack(
             [
                 jnp.stack(
                     [sum(rotation[a, b] * self.frame0[b, c] for b in range(3)) for c in range(3)]
@@ -261,11 +289,57 @@ class LatticeDynamics(AbstractDynamics):
                 for a in range(3)
             ]
         )
+
+    def senses(self, state, world: World, control_dt: float):
+        """The lattice's senses, normalised to [0, 1] and clipped (`Lattice.sense_names`):
+
+        - `height`: the centre of mass's height over `[0, 2 size]` (`size`: the rest shape's
+            largest extent);
+        - `velocity_*`: its velocity in the lattice frame over `[-v, v]`,
+            `v = sqrt(2 g size)` (the speed of a fall through the body's size; `g` is the
+            world's gravity, or 9.81 m/s^2 without it);
+        - `up_*`: the world's up axis in the lattice frame, each component over `[-1, 1]`;
+        - `contact[i]`: the floor's normal force on mass `i` over `[0, M g]` (the whole
+            weight).
+        """
+        del control_dt
+        x, v = state
+        g, v_scale = _scales(world, self.size)
+        com = self._com(x)
+        com_vel = self._com(v)
+        frame = self._frame(x, com)
+        # Velocity and up axis in the lattice frame: frame^T applied.
+        velocity = [sum(frame[a, c] * com_vel[a] for a in range(3)) for c in range(3)]
+        up = [frame[2, c] for c in range(3)]
+        if world.floor:
+            _, _, fn = floor_force(world, x[0], x[1], x[2], v[0], v[1], v[2])
+        else:
+            fn = jnp.zeros_like(x[2])
+        weight = g * jnp.sum(self.masses)
+        return jnp.concatenate(
+            [
+                jnp.stack(
+                    [
+                        _unit(com[2], 0.0, 2.0 * self.size),
+                        *(_signed(c, v_scale) for c in velocity),
+                        *(_signed(c, 1.0) for c in up),
+                    ]
+                ),
+                jnp.clip(fn / weight, 0.0, 1.0),
+            ]
+        )
+
+    def observe(self, positions, world: World) -> Observation:
+        # Written for positions (3, n, *batch) with any trailing batch axes (time, controllers):
+        # everything is elementwise over them, with explicit sums over the masses, so it
+        # vectorises and gives each sample the same rounding whatever the batch.
+        x = positions
+        com = self._com(x)  # (3, *batch)
+        frame = self._frame(x, com)
         if world.floor:
             contact = x[2] < 0
         else:
             contact = jnp.zeros(x.shape[1:], dtype=bool)
-        del extra
         return Observation(points=jnp.swapaxes(x, 0, 1), com=com, frame=frame, contact=contact)
 
 

@@ -14,6 +14,7 @@ from typing import Any
 
 from .. import figures, lattices
 from .._control.regimes import RegimesSpace
+from .._control.sense_bsr import SenseBSRSpace
 from .._control.time_bsr import TimeBSRSpace
 from .._objective.registry import Objective
 from .._sim.simulate import time_grid
@@ -207,22 +208,44 @@ TIME_BSR = {
     "reinit_probability": Key("number", 1 / 3, lambda v: 0 <= v <= 1, "in [0, 1]"),
 }
 
-FAMILIES = {"lattice": ("regimes", CONTROLLER), "figure": ("time_bsr", TIME_BSR)}
+SENSE_BSR = {
+    "family": Key("string", "sense_bsr", lambda v: v == "sense_bsr", '"sense_bsr" (for a figure)'),
+    "num_rules": Key("integer", 10, lambda v: v >= 1, ">= 1 (the second paper: 10)"),
+    "tau_min": TIME_BSR["tau_min"],
+    "tau_max": TIME_BSR["tau_max"],
+    "filter_time": Key("number", 0.0, _nonnegative, ">= 0 (s; 0: no low-pass filter)"),
+    "creep": TIME_BSR["creep"],
+    "reinit_probability": TIME_BSR["reinit_probability"],
+    "relevance": Key(
+        "string",
+        None,
+        lambda v: v in ("corner", "contain", "none"),
+        '"corner" (2D default), "contain" (3D default) or "none"',
+    ),
+}
+
+# The controller families of each kind of body, the default first.
+FAMILIES = {
+    "lattice": {"regimes": CONTROLLER},
+    "figure": {"time_bsr": TIME_BSR, "sense_bsr": SENSE_BSR},
+}
 
 
 def _controller_schema(table: Any, body_kind: str) -> dict[str, Key]:
-    family, schema = FAMILIES[body_kind]
-    given = table.get("family", family) if isinstance(table, Mapping) else family
-    if given != family:
-        known = {f for f, _ in FAMILIES.values()}
+    families = FAMILIES[body_kind]
+    default = next(iter(families))
+    given = table.get("family", default) if isinstance(table, Mapping) else default
+    if given not in families:
+        known = {f for kinds in FAMILIES.values() for f in kinds}
         what = "an articulated figure" if body_kind == "figure" else "a mass-spring lattice"
+        allowed = " or ".join(repr(f) for f in families)
         if given in known:
             raise ConfigError(
                 f"[controller] family = {given!r} does not control {what}; allowed: "
-                f"family = {family!r} for the [body] given"
+                f"family = {allowed} for the [body] given"
             )
-        raise ConfigError(f"[controller] family = {given!r}; allowed: {family!r} for {what}")
-    return schema
+        raise ConfigError(f"[controller] family = {given!r}; allowed: {allowed} for {what}")
+    return families[given]
 
 
 SIMULATION = {
@@ -248,6 +271,12 @@ SERIAL_SEARCH = {
     "climbers": Key("integer", 10, lambda v: v >= 1, ">= 1 (the second paper: C = 10)"),
     "generations": Key("integer", 4000, lambda v: v >= 1, ">= 1 (G = 4,000)"),
     "reseed_every": Key("integer", 200, lambda v: v >= 1, ">= 1 (R = 200)"),
+    "enrich": Key(
+        "integer",
+        0,
+        lambda v: v >= 0,
+        ">= 0 (rounds of relevance-heuristic reinitialisation of the first set; sense_bsr)",
+    ),
     "runs": Key(
         "integer", 1, lambda v: v >= 1, ">= 1 (independent runs batched together; best kept)"
     ),
@@ -282,8 +311,8 @@ CHECK = {
     "motion": Key(
         "string",
         _REQUIRED,
-        lambda v: v in ("leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound"),
-        '"leap", "somersault", "pirouette", "shuffle", "cartwheel" or "bound"',
+        lambda v: v in ("leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound", "jump"),
+        '"leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound" or "jump"',
     ),
 }
 
@@ -387,18 +416,12 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
     if body_kind == "figure":
         controller_cfg.setdefault("tau_min", 2 * simulation_cfg["dt"])
         controller_cfg.setdefault("tau_max", simulation_cfg["duration"] / 4)
-        space = build(
-            "controller",
-            lambda: TimeBSRSpace(
-                body,
-                num_rules=controller_cfg["num_rules"],
-                t_per=controller_cfg["t_per"],
-                tau_min=controller_cfg["tau_min"],
-                tau_max=controller_cfg["tau_max"],
-                creep=controller_cfg["creep"],
-                reinit_probability=controller_cfg["reinit_probability"],
-            ),
-        )
+        if controller_cfg["family"] == "sense_bsr":
+            controller_cfg.setdefault("relevance", "corner" if body.planar else "contain")
+        family = SenseBSRSpace if controller_cfg["family"] == "sense_bsr" else TimeBSRSpace
+        # Every key but the family is an argument of the family's space, by name.
+        settings = {k: v for k, v in controller_cfg.items() if k != "family"}
+        space = build("controller", lambda: family(body, **settings))
     else:
         space = build(
             "controller",
@@ -407,6 +430,12 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
                 t_per=controller_cfg["t_per"],
                 amplitudes=tuple(controller_cfg["amplitudes"]),
             ),
+        )
+    if search_cfg.get("enrich", 0) and not hasattr(space, "reinitialise"):
+        raise ConfigError(
+            f"[search] enrich = {search_cfg['enrich']} needs a controller family with the "
+            f"relevance heuristic; allowed: enrich = 0 for family = {space.family!r}, or "
+            'family = "sense_bsr"'
         )
     objective = build("objective", lambda: Objective(dict(objective_raw)))
     build(

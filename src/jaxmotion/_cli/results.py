@@ -20,6 +20,7 @@ import tomli_w
 
 from .._control.base import AbstractController
 from .._control.regimes import Regimes
+from .._control.sense_bsr import SenseBSR
 from .._control.time_bsr import TimeBSR
 from .._search.hill_climb import SearchResult, parallel_hill_climb
 from .._search.history import History
@@ -29,6 +30,7 @@ from .config import ConfigError, Experiment, parse_config
 CONTROLLER_FAMILIES: dict[str, type[AbstractController]] = {
     "regimes": Regimes,
     "time_bsr": TimeBSR,
+    "sense_bsr": SenseBSR,
 }
 FORMAT_VERSION = 1
 
@@ -115,6 +117,7 @@ def _run_search(experiment: Experiment, progress: bool) -> tuple[SearchResult, d
             climbers=s["climbers"],
             generations=s["generations"],
             reseed_every=s["reseed_every"],
+            enrich=s["enrich"],
             progress=progress,
             # One History per run: the step's evaluations are all of theirs together.
             callback=lambda state, parts: clock(state, range(sum(len(p) for p in parts))),
@@ -260,7 +263,9 @@ def run_check(experiment: Experiment, trajectory):
 
     check = CHECKS[experiment.check]
     task = experiment.task
-    available = {"body_length": float(task.body.body_length), "period": task.space.t_per}
+    available = {"body_length": float(task.body.body_length)}
+    if hasattr(task.space, "t_per"):
+        available["period"] = task.space.t_per
     wanted = inspect.signature(check).parameters
     return check(trajectory, **{k: v for k, v in available.items() if k in wanted})
 

@@ -1,59 +1,114 @@
-"""Controllers and the families (spaces) that sample and perturb them."""
+"""Controllers (small hybrid systems that sense the body and carry state) and the families
+(spaces) that sample and perturb them."""
 
 import abc
-from typing import Any, ClassVar, Generic, TypeVar
+from typing import Any, ClassVar, Generic, NamedTuple, TypeVar
 
 import equinox as eqx
 import jax
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, Float, PRNGKeyArray, PyTree
 
 from .._body.base import AbstractBody
 
 
+class ControllerState(NamedTuple):
+    """What a controller carries through a simulation, part of the simulation state (so it
+    is batched, sharded and continued with the body's).
+
+    - `discrete`: a pytree that changes only at control ticks (`AbstractController.update`):
+        the active regime or rule, low-pass-filtered senses, a sequence's phase. `None` if
+        the controller has none.
+    - `continuous`: `None`, or a pair `(positions, velocities)` of pytrees with rates of
+        their own (`AbstractController.rates`), integrated with the body by the same solver
+        (a spring net's masses).
+    """
+
+    discrete: PyTree = None
+    continuous: tuple[PyTree, PyTree] | None = None
+
+
 class AbstractController(eqx.Module):
-    """A controller: an equinox Module whose array fields are its parameters.
+    """A controller: an equinox Module whose array fields are its parameters, and a small
+    hybrid system run alongside the body (the way robotics simulators run a policy).
 
     A simulation first calls `prepare(body)` once (outside the time loop) for whatever can
-    be computed ahead, then `actuation(t, plan)` at every step; what it returns is what the
-    body's dynamics take as actuation (for lattices, a table of spring rest lengths).
+    be computed ahead (the plan), and `init(senses, plan)` for the controller's state over
+    the first control period, from t = 0. Time then runs in control periods of `control_dt`
+    (by default one step of the search's solver); in each period:
 
-    A controller whose actuation is a cheap choice made from the time alone (which regime or
-    rule is active) followed by work on the plan can say so by overriding `schedule` and
-    `actuation_from`: the batched fast path then makes the choice once per controller and
-    step and carries it into the step, instead of XLA repeating it for every entry of the
-    actuation it selects (for a lattice, every spring of every regime table).
+    1. the body is driven by `actuation(t, state, plan)`, and the state's continuous part
+        (if any) moves with `rates(t, state, plan)`;
+    2. at the period's end `t_k` (a *control tick*), `update(t_k, state, senses, plan)`
+        returns the state for the next period from the time, the state and the body's senses
+        there (normalised to [0, 1]; `None` unless the class sets `reads_senses`).
 
-    A subclass that sets `supports_batch_last = True` promises that `actuation` also works on
-    a batch of controllers stacked with the batch as the *last* axis of every array field
-    (and of the plan): index only leading axes and let elementwise arithmetic broadcast. The
-    fast batched path then calls it once for the whole batch; otherwise it is `vmap`ped.
+    This is the second paper's Figure 2: act, simulate the period, sense, possibly change the
+    active rule. The discrete part of the state is held between ticks (zero-order hold), so
+    `actuation` may switch discontinuously only through it: the adaptive solvers integrate
+    from tick to tick and never see a switch inside a step. Its dependence on `t` and on the
+    continuous state must be smooth.
+
+    An open-loop (time-based) controller ignores the senses: what it carries from tick to
+    tick is its choice (the active regime or rule), made once per controller and tick rather
+    than for every entry of the actuation it selects.
+
+    A subclass that sets `supports_batch_last = True` promises that `init`, `update`,
+    `actuation`, `rates` and `perceive` also work on a batch of controllers stacked with the
+    batch as the *last* axis of every array field (and of the plan, the state and the
+    senses): index only leading axes and let elementwise arithmetic broadcast. The batched
+    layout then calls them once for the whole batch; otherwise it `vmap`s them.
     """
 
     supports_batch_last: ClassVar[bool] = False
+    reads_senses: ClassVar[bool] = False
 
     @abc.abstractmethod
     def prepare(self, body: AbstractBody) -> Any:
-        """Per-simulation precomputation (a pytree), e.g. the rest lengths of every regime."""
+        """Per-simulation precomputation (a pytree), e.g. the rest lengths of every regime.
+        Raises `TypeError` or `ValueError` if the controller does not fit `body`."""
+
+    def init(self, senses: Float[Array, " num_senses"] | None, plan: Any) -> ControllerState:
+        """The state over the first control period, from t = 0, given the senses of the
+        starting state (`None` unless `reads_senses`). Default: no state."""
+        del senses, plan
+        return ControllerState()
+
+    def update(
+        self,
+        t: Float[Array, ""],
+        state: ControllerState,
+        senses: Float[Array, " num_senses"] | None,
+        plan: Any,
+    ) -> ControllerState:
+        """The state after the control tick at time `t` (the state for the period from `t`),
+        given the body's `senses` there. Default: unchanged."""
+        del t, senses, plan
+        return state
 
     @abc.abstractmethod
-    def actuation(self, t: Float[Array, ""], plan: Any) -> Any:
-        """The actuation at time `t`."""
+    def actuation(self, t: Float[Array, ""], state: ControllerState, plan: Any) -> Any:
+        """What the body's dynamics take as actuation at time `t` (for lattices, a table of
+        spring rest lengths; for figures, target joint angles and a time constant)."""
 
-    def schedule(self, t: Float[Array, ""]) -> Any:
-        """The choice `actuation` makes from the time `t` alone (e.g. the active regime's
-        index): small per controller, computed once per step. Default: `t` itself."""
-        return t
+    def rates(
+        self, t: Float[Array, ""], state: ControllerState, plan: Any
+    ) -> tuple[PyTree, PyTree] | None:
+        """Time derivative of `state.continuous`, shaped like it (`None` when there is no
+        continuous state, the default)."""
+        del t, state, plan
+        return None
 
-    def actuation_from(self, schedule: Any, plan: Any) -> Any:
-        """The actuation for `schedule(t)`: `actuation_from(schedule(t), plan)` equals
-        `actuation(t, plan)`. Default: `actuation(schedule, plan)` (with the default
-        `schedule`, the time)."""
-        return self.actuation(schedule, plan)
+    def perceive(self, state: ControllerState, senses: Any, plan: Any) -> Any:
+        """The sense vector the controller's decisions read at a tick with these `senses`
+        (default: the senses themselves; a low-pass-filtered controller returns its filtered
+        senses). Searches record it along a motion (the relevance heuristic)."""
+        del state, plan
+        return senses
 
     def smoothed(self, width: float) -> "AbstractController":
-        """The same controller with its discrete switches blended over `width` seconds, for
-        gradients (`jaxmotion.refine`); `width=0` must return the controller unchanged.
-        Controllers without switches return themselves."""
+        """The same controller with its discrete switches blended (for gradients,
+        `jaxmotion.refine`); `width=0` must return the controller unchanged. Controllers
+        without switches return themselves."""
         del width
         return self
 
@@ -64,15 +119,23 @@ C = TypeVar("C", bound=AbstractController)
 class AbstractControllerSpace(eqx.Module, Generic[C]):
     """A controller family: knows how to draw random controllers and how to perturb one, with
     the distributions of the paper it comes from. Both act on one controller; `vmap` them over
-    `jax.random.split(key, n)` for a population."""
+    `jax.random.split(key, n)` for a population.
+
+    A family whose mutation looks at the parent's motion (the second paper's relevance
+    heuristic) sets `uses_motion = True`: searches then record the senses the parent's
+    controller perceived along its motion (`Task.evaluate_sensed`) and pass them to
+    `perturb` as `motion`, a `(num_samples, num_senses)` array.
+    """
+
+    uses_motion: ClassVar[bool] = False
 
     @abc.abstractmethod
     def sample(self, *, key: PRNGKeyArray) -> C:
         """A random controller."""
 
     @abc.abstractmethod
-    def perturb(self, controller: C, *, key: PRNGKeyArray) -> C:
-        """A perturbed copy of `controller`."""
+    def perturb(self, controller: C, *, key: PRNGKeyArray, motion=None) -> C:
+        """A perturbed copy of `controller` (`motion`: see `uses_motion`)."""
 
     @property
     @abc.abstractmethod

@@ -12,7 +12,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from .._body.lattice import Lattice
-from .base import AbstractController, AbstractControllerSpace
+from .base import AbstractController, AbstractControllerSpace, ControllerState
 from .deformations import DEFAULT_AMPLITUDES, deform
 
 
@@ -41,7 +41,9 @@ class Regimes(AbstractController):
     lattice's spring rest lengths are those of its rest shape deformed by reflex `reflexes[c]`
     (see `jaxmotion.REFLEX_NAMES` and `deform`) with coefficient `coefficients[c]`, about the
     centre of mass and along the lattice-centric axes. With `t_per >= duration` the sequence
-    is not periodic.
+    is not periodic. The regime is chosen at each control tick and held until the next
+    (its state is the active regime's index), so a switch takes effect at the first tick at
+    or after its time.
 
     **Fields:** `times` `(C,)` in `[0, t_per]`; `reflexes` `(C,)` integers in `0..11`;
     `coefficients` `(C,)` in `[-1, 1]`; `t_per` the period (s); `amplitudes` the
@@ -120,22 +122,30 @@ class Regimes(AbstractController):
             self.times, self.reflexes, self.coefficients, self.t_per, self.amplitudes, width
         )
 
-    def actuation(self, t, plan: Float[Array, "C n n"]) -> Float[Array, "n n"]:
-        return self.actuation_from(self.schedule(t), plan)
+    def init(self, senses, plan) -> ControllerState:
+        """The choice for the first period: the regime of t = 0."""
+        return self.update(jnp.zeros((), dtype=float), None, senses, plan)
 
-    def schedule(self, t):
-        """The active regime's index (hard switch); the time itself when `blend > 0`, whose
-        cross-fade needs every regime's distance."""
-        return t if self.blend > 0 else self.active(t)
-
-    def actuation_from(self, schedule, plan):
+    def update(self, t, state, senses, plan) -> ControllerState:
+        """The choice made at a tick: the active regime's index (hard switch), or the tick's
+        time when `blend > 0` (the cross-fade needs every regime's distance)."""
+        del state, senses, plan
         if self.blend > 0:
-            return self._blended(jnp.mod(schedule, self.t_per), plan)
+            return ControllerState(jnp.broadcast_to(t, jnp.shape(self.t_per)).astype(float))
+        return ControllerState(self.active(t))
+
+    def actuation(self, t, state: ControllerState, plan: Float[Array, "C n n"]):
+        """The rest-length table of the regime chosen at the last tick (held until the
+        next)."""
+        del t
+        if self.blend > 0:
+            return self._blended(jnp.mod(state.discrete, self.t_per), plan)
         # A chain of selects rather than an index: under vmap an index per controller would
         # become a gather, which is slow on CPU; selects stay elementwise.
+        index = state.discrete
         table = plan[0]
         for c in range(1, self.num_regimes):
-            table = jnp.where(schedule == c, plan[c], table)
+            table = jnp.where(index == c, plan[c], table)
         return table
 
     def _blended(self, phase, plan):
@@ -362,6 +372,7 @@ class RegimesSpace(AbstractControllerSpace[Regimes]):
             ),
         )
 
-    def perturb(self, controller: Regimes, *, key: PRNGKeyArray) -> Regimes:
+    def perturb(self, controller: Regimes, *, key: PRNGKeyArray, motion=None) -> Regimes:
+        del motion
         u = jr.uniform(key, (2 + 4 * self.num_regimes,))
         return self._apply(_choose(u[0]), controller, u[1:])

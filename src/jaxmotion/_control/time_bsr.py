@@ -12,7 +12,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .._body.figure import Figure
-from .base import AbstractController, AbstractControllerSpace
+from .base import AbstractController, AbstractControllerSpace, ControllerState
 
 
 class TimeBSR(AbstractController):
@@ -22,7 +22,8 @@ class TimeBSR(AbstractController):
     segments, and during segment `r` rule `r` is active: every free joint angle of the figure
     moves toward the rule's target pose `targets[r]` with the rule's time constant `taus[r]`
     (`tau^2 th'' + 2 tau th' + (th - th0) = 0`). With `t_per >= duration` the script runs
-    once (not periodic: the second paper's Beryl tumble).
+    once (not periodic: the second paper's Beryl tumble). The rule is chosen at each control
+    tick and held until the next (its state is the active rule's index).
 
     **Fields:** `splits` `(R - 1,)` the segment boundaries in `[0, t_per]`, ascending (rule 0
     owns `[0, splits[0])`, rule r `[splits[r - 1], splits[r])`, the last rule up to `t_per`);
@@ -68,15 +69,28 @@ class TimeBSR(AbstractController):
     def active(self, t: Float[Array, ""]):
         """Index of the rule active at time `t`."""
         phase = jnp.mod(t, self.t_per)
-        return sum((phase >= self.splits[r]).astype(jnp.int32) for r in range(self.num_rules - 1))
+        index = jnp.zeros(jnp.shape(phase), dtype=jnp.int32)
+        for r in range(self.num_rules - 1):
+            index = index + (phase >= self.splits[r]).astype(jnp.int32)
+        return index
 
-    def actuation(self, t, plan):
-        del plan
-        phase = jnp.mod(t, self.t_per)
+    def init(self, senses, plan) -> ControllerState:
+        """The choice for the first period: the rule of t = 0."""
+        return self.update(jnp.zeros((), dtype=float), None, senses, plan)
+
+    def update(self, t, state, senses, plan) -> ControllerState:
+        """The rule whose segment holds the tick's time."""
+        del state, senses, plan
+        return ControllerState(self.active(t))
+
+    def actuation(self, t, state: ControllerState, plan):
+        """The active rule's target pose and time constant (held until the next tick)."""
+        del t, plan
         # A chain of selects (elementwise under vmap) rather than an index (a gather).
+        index = state.discrete
         target, tau = self.targets[0], self.taus[0]
         for r in range(1, self.num_rules):
-            on = phase >= self.splits[r - 1]
+            on = index == r
             target = jnp.where(on, self.targets[r], target)
             tau = jnp.where(on, self.taus[r], tau)
         return target, tau
@@ -199,7 +213,8 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
         targets, taus = self._rule(u[r - 1 : r - 1 + r * f].reshape(r, f), u[r - 1 + r * f :])
         return TimeBSR(splits, targets, taus, self.t_per)
 
-    def perturb(self, controller: TimeBSR, *, key: PRNGKeyArray) -> TimeBSR:
+    def perturb(self, controller: TimeBSR, *, key: PRNGKeyArray, motion=None) -> TimeBSR:
+        del motion
         r, f = self.num_rules, self.num_free
         u = jr.uniform(key, (3 + f + 1,))
         rule = jnp.minimum((u[0] * r).astype(jnp.int32), r - 1)

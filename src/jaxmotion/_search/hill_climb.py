@@ -67,7 +67,8 @@ class ParallelHillClimb(eqx.Module):
         """Draw and evaluate the initial search set. Returns the state and the fitness of
         the initial controllers in the order they were drawn."""
         population, next_key = _sample(self, task, key)
-        fitness = _evaluate_in_batches(task, population, self.batch)
+        # In calls of the search's batch size, so that the steps reuse this compilation.
+        fitness = task.evaluate(population, chunk=self.batch)
         return _rank(population, fitness, next_key), fitness
 
     def ask(self, task: Task, state: HillClimbState) -> AbstractController:
@@ -96,24 +97,6 @@ class ParallelHillClimb(eqx.Module):
         children = self.ask(task, state)
         fitness = task.evaluate(children)
         return self.tell(state, children, fitness, num_valid), fitness
-
-
-def _evaluate_in_batches(task: Task, population, batch: int):
-    """Evaluate a population with calls of exactly `batch` controllers (the last one padded)
-    so that it reuses the compilation of the search steps."""
-    size = jax.tree_util.tree_leaves(population)[0].shape[0]
-    calls = -(-size // batch)
-    padded = jax.tree_util.tree_map(
-        lambda a: jnp.concatenate(
-            [a, jnp.broadcast_to(a[:1], (calls * batch - size, *a.shape[1:]))]
-        ),
-        population,
-    )
-    parts = [
-        task.evaluate(jax.tree_util.tree_map(lambda a, k=k: a[k * batch : (k + 1) * batch], padded))
-        for k in range(calls)
-    ]
-    return jnp.concatenate(parts)[:size]
 
 
 @eqx.filter_jit

@@ -11,8 +11,8 @@ import optax
 from jaxtyping import Array, Float
 
 from .._control.base import AbstractController
-from .._sim.compile import simulation_jit
-from .._task import Task, _batch_size, _local_fitness, _padded, _replicated, _share
+from .._sim import execution
+from .._task import Task, _fitness
 from .history import History
 
 
@@ -80,7 +80,7 @@ class RefineResult:
 def _local_value_and_grad(task: Task, trainable, frozen, smoothing: Smoothing):
     def total(p):
         params = eqx.combine(p, frozen)
-        fitness = _local_fitness(smoothing.task(task), smoothing.controllers(params))
+        fitness = _fitness(smoothing.task(task), smoothing.controllers(params))
         # Each controller's fitness depends on its own parameters only, so the gradient of the
         # sum is every controller's own gradient. A blown-up run (-inf) contributes nothing
         # here and gets a non-finite gradient of its own, which `refine` skips.
@@ -90,19 +90,20 @@ def _local_value_and_grad(task: Task, trainable, frozen, smoothing: Smoothing):
     return fitness, grads
 
 
-@simulation_jit
-def _value_and_grad(task: Task, params, spec, smoothing: Smoothing):
-    """Smoothed fitness and its gradient for every controller (leading batch axis)."""
+def _local_gradients(args, params):
+    task, spec, smoothing = args
+    trainable, frozen = eqx.partition(params, spec)
+    return _local_value_and_grad(task, trainable, frozen, smoothing)
 
-    # One device: reverse-mode through diffrax inside `shard_map` fails in equinox's
-    # closure conversion (it sees the per-device shapes), so gradients are not yet sharded.
-    # Padded as `Task.evaluate` pads one device's share (whole lane groups, at least 16),
-    # so that the forward pass runs the same widths as evaluate's.
-    batch = _batch_size(params)
-    padded = _padded(params, _share(batch))
-    trainable, frozen = eqx.partition(padded, spec)
-    out = _local_value_and_grad(task, trainable, frozen, smoothing)
-    return jax.tree_util.tree_map(lambda a: a[:batch], out)
+
+def _value_and_grad(task: Task, params, spec, smoothing: Smoothing):
+    """Smoothed fitness and its gradient for every controller (leading batch axis), laid
+    out as `Task.evaluate` lays out one device's share (whole lane groups, at least 16), so
+    that the forward pass runs the same widths as evaluate's.
+
+    One device: reverse-mode through diffrax inside `shard_map` fails in equinox's closure
+    conversion (it sees the per-device shapes), so gradients are not yet sharded."""
+    return execution.run(_local_gradients, (task, spec, smoothing), params, shard=False)
 
 
 @eqx.filter_jit
@@ -156,8 +157,8 @@ def fitness_and_gradient(
 
 def _prepared(task: Task, params):
     """The batch placed as `Task.evaluate` places it, and the family's trainable spec."""
-    _batch_size(params)
-    params = _replicated(params)
+    execution.batch_size(params)
+    params = execution.replicated(params)
     return params, task.space.trainable(jax.tree_util.tree_map(lambda a: a[0], params))
 
 
@@ -206,7 +207,7 @@ def refine(
     params, spec = _prepared(task, params)
     opt_state = jax.vmap(optimizer.init)(eqx.filter(params, spec))
     best = params
-    best_fitness = jnp.full(_batch_size(params), -jnp.inf)
+    best_fitness = jnp.full(execution.batch_size(params), -jnp.inf)
     parts, skipped = [], 0
     for k in range(steps):
         _, grads = _value_and_grad(task, params, spec, smoothing)

@@ -28,6 +28,9 @@ class SerialSearchState(eqx.Module):
         `jax.random.fold_in(key[s], g)`.
     - `generation`: how many generations have been made.
     - `evaluations`: how many controllers each seed has evaluated, the initial set included.
+    - `motion`: for a family whose mutation looks at the parent's motion (`uses_motion`),
+        the senses each climber perceived along its motion, `(seeds, climbers, samples,
+        senses)`; otherwise `None`.
 
     Seed `s` of a batched state, `state.seed(s)`, is bitwise the state of that seed run
     alone.
@@ -38,6 +41,7 @@ class SerialSearchState(eqx.Module):
     key: PRNGKeyArray
     generation: Int[Array, ""]
     evaluations: Int[Array, ""]
+    motion: Float[Array, "seeds climbers samples senses"] | None = None
 
     @property
     def num_seeds(self) -> int:
@@ -48,11 +52,12 @@ class SerialSearchState(eqx.Module):
         """The state of seed number `s` of this batch (the `s`-th along the leading axis),
         with a seeds axis of length 1: the state a run of that seed alone would have."""
         return eqx.tree_at(
-            lambda st: (st.population, st.fitness, st.key),
+            lambda st: (st.population, st.fitness, st.key, st.motion),
             self,
             jax.tree_util.tree_map(
-                lambda a: a[s : s + 1], (self.population, self.fitness, self.key)
+                lambda a: a[s : s + 1], (self.population, self.fitness, self.key, self.motion)
             ),
+            is_leaf=lambda x: x is None,
         )
 
 
@@ -80,35 +85,61 @@ class SerialSearch(eqx.Module):
     `jax.random.fold_in(key, s)` alone, and evaluation is independent of the batch, so a
     seed gives bitwise the same search whether run alone or among others.
 
+    A family whose mutation looks at the parent's motion (`space.uses_motion`, the second
+    paper's relevance heuristic) gets it: every evaluation also records the senses each
+    controller perceived at the saved times (`Task.evaluate_sensed`), the state keeps them
+    with each climber, and `ask` hands each climber's to its mutation. `enrich` rounds of the
+    heuristic reinitialisation (`space.reinitialise`) then enrich the initial set, each round
+    evaluated and kept whatever its fitness (section 4.2: "applying three rounds of this
+    mutation operation to the first set ... enriching the initial population").
+
     `ask` and `tell` are jitted; `step` composes ask, `task.evaluate` and tell.
 
     **Arguments:**
 
     - `climbers`: controllers per seed (the paper's C = 10).
     - `reseed_every`: generations between reseedings (the paper's R = 200).
+    - `enrich`: rounds of relevance-heuristic reinitialisation of the initial set (0: none).
     """
 
     climbers: int = eqx.field(static=True)
     reseed_every: int = eqx.field(static=True)
+    enrich: int = eqx.field(static=True)
 
-    def __init__(self, climbers: int = 10, reseed_every: int = 200):
+    def __init__(self, climbers: int = 10, reseed_every: int = 200, enrich: int = 0):
         self.climbers = _check_positive_int("climbers", climbers)
         self.reseed_every = _check_positive_int("reseed_every", reseed_every)
+        if isinstance(enrich, bool) or not isinstance(enrich, int | np.integer) or enrich < 0:
+            raise ValueError(f"enrich = {enrich!r}; allowed: an integer >= 0")
+        self.enrich = int(enrich)
 
     def init(
         self, task: Task, *, key: PRNGKeyArray, seeds: int = 1, seed_offset: int = 0
-    ) -> tuple[SerialSearchState, Float[Array, "seeds climbers"]]:
+    ) -> tuple[SerialSearchState, Float[Array, "rounds seeds climbers"]]:
         """Draw and evaluate the initial climbers of seeds `seed_offset, ...,
-        seed_offset + seeds - 1`; seed `s` draws from `jax.random.fold_in(key, s)`.
+        seed_offset + seeds - 1` (and enrich them, `enrich` rounds); seed `s` draws from
+        `jax.random.fold_in(key, s)`.
 
-        **Returns:** the state and the fitness of the initial climbers, `(seeds, climbers)`.
+        **Returns:** the state and the fitness of every initial evaluation,
+        `(1 + enrich, seeds, climbers)`: the random set, then each enrichment round.
         """
         seeds = _check_positive_int("seeds", seeds)
         seed_offset = _check_seed_offset(seed_offset)
+        if self.enrich and not hasattr(task.space, "reinitialise"):
+            raise ValueError(
+                f"enrich = {self.enrich}: the {task.space.family!r} family has no relevance "
+                "heuristic to enrich with (allowed: enrich = 0)"
+            )
         population, keys = _sample(task, key, jnp.arange(seeds) + seed_offset, self.climbers)
-        fitness = task.evaluate(population)
-        state = _start(population, fitness, keys)
-        return state, state.fitness
+        fitness, motion = _evaluate(task, population)
+        state = _start(population, fitness, keys, motion)
+        rounds = [state.fitness]
+        for k in range(self.enrich):
+            candidates = _enriched(task, state, k)
+            fitness, motion = _evaluate(task, candidates)
+            state = _replace(state, candidates, fitness, motion)
+            rounds.append(state.fitness)
+        return state, jnp.stack(rounds)
 
     def ask(self, task: Task, state: SerialSearchState) -> AbstractController:
         """This generation's mutant of every climber: `seeds * climbers` controllers along
@@ -120,12 +151,22 @@ class SerialSearch(eqx.Module):
         state: SerialSearchState,
         mutants: AbstractController,
         fitness: Float[Array, " batch"],
+        motion: Float[Array, "batch samples senses"] | None = None,
     ) -> SerialSearchState:
         """Replace every climber whose mutant has strictly greater fitness (NaN and `-inf`
         never do), then reseed if this generation is a multiple of `reseed_every`.
         `mutants` and `fitness` are seed-major along one axis of `seeds * climbers`, as `ask`
-        and `task.evaluate` give them; `fitness` may also come shaped `(seeds, climbers)`."""
-        return _tell(state, mutants, fitness, jnp.asarray(self.reseed_every, dtype=jnp.int32))
+        and `task.evaluate` give them; `fitness` may also come shaped `(seeds, climbers)`.
+        `motion`: the mutants' perceived senses (`Task.evaluate_sensed`), for a state that
+        keeps them."""
+        if (motion is None) != (state.motion is None):
+            raise ValueError(
+                "tell needs the mutants' motion exactly when the state keeps motions "
+                "(the family's uses_motion)"
+            )
+        return _tell(
+            state, mutants, fitness, motion, jnp.asarray(self.reseed_every, dtype=jnp.int32)
+        )
 
     def step(
         self, task: Task, state: SerialSearchState
@@ -133,8 +174,15 @@ class SerialSearch(eqx.Module):
         """ask, evaluate, tell. Returns the new state and the fitness of this generation's
         mutants, `(seeds, climbers)`."""
         mutants = self.ask(task, state)
-        fitness = task.evaluate(mutants)
-        return self.tell(state, mutants, fitness), fitness.reshape(state.fitness.shape)
+        fitness, motion = _evaluate(task, mutants)
+        return self.tell(state, mutants, fitness, motion), fitness.reshape(state.fitness.shape)
+
+
+def _evaluate(task: Task, population):
+    """Fitness, and the perceived senses when the family's mutation uses the motion."""
+    if type(task.space).uses_motion:
+        return task.evaluate_sensed(population)
+    return task.evaluate(population), None
 
 
 def _flat(tree):
@@ -160,7 +208,7 @@ def _sample(task: Task, key, seeds, climbers: int):
 
 
 @eqx.filter_jit
-def _start(population, fitness, keys) -> SerialSearchState:
+def _start(population, fitness, keys, motion) -> SerialSearchState:
     seeds = keys.shape[0]
     fitness = fitness.reshape(seeds, -1)
     return SerialSearchState(
@@ -170,16 +218,53 @@ def _start(population, fitness, keys) -> SerialSearchState:
         key=keys,
         generation=jnp.asarray(0, dtype=jnp.int32),
         evaluations=jnp.asarray(fitness.shape[1], dtype=jnp.int32),
+        motion=None if motion is None else _per_seed(motion, seeds),
+    )
+
+
+@eqx.filter_jit
+def _enriched(task: Task, state: SerialSearchState, round_: int):
+    """Every climber with one rule reinitialised by the relevance heuristic. Round `k` of
+    seed `s` draws from `fold_in(fold_in(key[s], 0), k)` (generation `g` draws from
+    `fold_in(key[s], g + 1)`)."""
+
+    def one(population, key, motion):
+        keys = jr.split(jr.fold_in(jr.fold_in(key, 0), round_), state.fitness.shape[1])
+        return jax.vmap(lambda p, k, m: task.space.reinitialise(p, key=k, motion=m))(
+            population, keys, motion
+        )
+
+    return _flat(jax.vmap(one)(state.population, state.key, state.motion))
+
+
+@eqx.filter_jit
+def _replace(state: SerialSearchState, candidates, fitness, motion) -> SerialSearchState:
+    """Every climber replaced by its candidate, whatever the fitness (enrichment)."""
+    seeds, climbers = state.fitness.shape
+    fitness = fitness.reshape(seeds, climbers)
+    return SerialSearchState(
+        population=_per_seed(candidates, seeds),
+        fitness=jnp.where(jnp.isnan(fitness), -jnp.inf, fitness),
+        key=state.key,
+        generation=state.generation,
+        evaluations=state.evaluations + climbers,
+        motion=None if motion is None else _per_seed(motion, seeds),
     )
 
 
 @eqx.filter_jit
 def _ask(task: Task, state: SerialSearchState):
-    def one(population, key):
+    def one(population, key, motion):
         keys = jr.split(jr.fold_in(key, state.generation + 1), state.fitness.shape[1])
-        return jax.vmap(lambda p, k: task.space.perturb(p, key=k))(population, keys)
+        if motion is None:
+            return jax.vmap(lambda p, k: task.space.perturb(p, key=k))(population, keys)
+        return jax.vmap(lambda p, k, m: task.space.perturb(p, key=k, motion=m))(
+            population, keys, motion
+        )
 
-    return _flat(jax.vmap(one)(state.population, state.key))
+    if state.motion is None:
+        return _flat(jax.vmap(lambda p, k: one(p, k, None))(state.population, state.key))
+    return _flat(jax.vmap(one)(state.population, state.key, state.motion))
 
 
 def _select(mask, new, old):
@@ -188,8 +273,8 @@ def _select(mask, new, old):
 
 
 def _reseeded(population, fitness, half: int):
-    """One seed's climbers ranked (stably, best first), the worse `half` replaced by copies
-    of the best `half`."""
+    """One seed's climbers (and whatever is kept with them) ranked (stably, best first), the
+    worse `half` replaced by copies of the best `half`."""
     size = fitness.shape[0]
     order = jnp.argsort(-fitness, stable=True)
     rank = jnp.arange(size)
@@ -198,31 +283,37 @@ def _reseeded(population, fitness, half: int):
 
 
 @eqx.filter_jit
-def _tell(state: SerialSearchState, mutants, fitness, reseed_every):
+def _tell(state: SerialSearchState, mutants, fitness, motion, reseed_every):
     seeds, climbers = state.fitness.shape
     mutants = _per_seed(mutants, seeds)
+    motion = None if motion is None else _per_seed(motion, seeds)
     fitness = fitness.reshape(state.fitness.shape)
     # Strictly greater: ties keep the incumbent, and NaN or -inf is never kept.
     better = fitness > state.fitness
-    population = jax.tree_util.tree_map(
-        lambda new, old: _select(better, new, old), mutants, state.population
+    # Each climber with its motion (if kept), selected and reseeded together.
+    kept = jax.tree_util.tree_map(
+        lambda new, old: _select(better, new, old),
+        (mutants, motion),
+        (state.population, state.motion),
     )
     fitness = jnp.where(better, fitness, state.fitness)
     generation = state.generation + 1
     reseed = generation % reseed_every == 0
-    population, fitness = jax.lax.cond(
+    kept, fitness = jax.lax.cond(
         reseed,
         lambda p, f: jax.vmap(lambda p1, f1: _reseeded(p1, f1, climbers // 2))(p, f),
         lambda p, f: (p, f),
-        population,
+        kept,
         fitness,
     )
+    population, motion = kept
     return SerialSearchState(
         population=population,
         fitness=fitness,
         key=state.key,
         generation=generation,
         evaluations=state.evaluations + climbers,
+        motion=motion,
     )
 
 
@@ -269,6 +360,7 @@ def serial_search(
     climbers: int = 10,
     generations: int = 4000,
     reseed_every: int = 200,
+    enrich: int = 0,
     progress: bool = False,
     callback: Callable[[SerialSearchState, tuple[History, ...]], None] | None = None,
 ) -> SerialSearchResult:
@@ -295,13 +387,15 @@ def serial_search(
     - `generations`: generations (the paper's G = 4000); each evaluates one mutant per
         climber.
     - `reseed_every`: generations between reseedings (the paper's R = 200).
+    - `enrich`: rounds of relevance-heuristic reinitialisation of the initial set (the
+        paper's Bob: 3; see `SerialSearch`).
     - `progress`: show a tqdm progress bar (off by default: the library does not print).
-    - `callback`: called after the initial evaluation and after every generation with the
-        state and that generation's evaluations, one `History` per seed.
+    - `callback`: called after the initial evaluations and after every generation with the
+        state and those evaluations, one `History` per seed.
 
     **Returns:** a `SerialSearchResult`; every seed's history has
-    `climbers * (generations + 1)` entries, step 0 being the initial climbers and step `g`
-    generation `g`.
+    `climbers * (1 + enrich + generations)` entries: step 0 holds the initial climbers
+    and each enrichment round, step `g` generation `g`.
 
     **Raises:** `ValueError` for a setting that is not a positive integer (`seed_offset`: a
     non-negative one), before anything compiles.
@@ -309,29 +403,31 @@ def serial_search(
     seeds = _check_positive_int("seeds", seeds)
     seed_offset = _check_seed_offset(seed_offset)
     generations = _check_positive_int("generations", generations)
-    search = SerialSearch(climbers=climbers, reseed_every=reseed_every)
+    search = SerialSearch(climbers=climbers, reseed_every=reseed_every, enrich=enrich)
 
     state, initial = search.init(task, key=key, seeds=seeds, seed_offset=seed_offset)
-    parts = [np.asarray(initial)]
+    parts = list(np.asarray(initial))  # one (seeds, climbers) row per evaluation round
+    steps = [0] * len(parts)
 
-    def report(state: SerialSearchState, part: np.ndarray, g: int):
+    def report(state: SerialSearchState, rows: list[np.ndarray], g: int):
         if callback is not None:
-            steps = np.full(search.climbers, g)
-            callback(state, tuple(History(f, steps) for f in part))
+            part = np.concatenate(rows, axis=1)  # (seeds, rounds * climbers)
+            callback(state, tuple(History(f, np.full(f.shape[0], g)) for f in part))
 
-    report(state, parts[0], 0)
+    report(state, parts, 0)
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=generations, unit="gen", desc="serial search")
     try:
-        best = float(np.max(parts[0]))
+        best = float(np.max(parts))
         for g in range(1, generations + 1):
             state, fitness = search.step(task, state)
             part = np.asarray(fitness)
             parts.append(part)
-            report(state, part, g)
+            steps.append(g)
+            report(state, [part], g)
             if bar is not None:
                 best = max(best, float(np.max(part)))
                 bar.update(1)
@@ -340,9 +436,9 @@ def serial_search(
         if bar is not None:
             bar.close()
 
-    # (generations + 1, seeds, climbers) -> per seed, in evaluation order.
+    # (rounds, seeds, climbers) -> per seed, in evaluation order.
     table = np.stack(parts)
-    steps = np.repeat(np.arange(generations + 1), search.climbers)
+    steps = np.repeat(np.asarray(steps), search.climbers)
     bests, best_fitness, states = _split(state)
     runs = [
         SearchResult(

@@ -1,49 +1,73 @@
-"""`simulate`: one body, one controller, one world, integrated with diffrax."""
+"""`simulate`: a body driven by a controller in a world, integrated with diffrax, from the rest
+pose or from any state; and its batched layout."""
 
 import math
 from dataclasses import dataclass
 from typing import Literal
 
 import diffrax as dfx
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._body.base import AbstractBody
+from .._body.base import AbstractBody, BodyState
 from .._control.base import AbstractController
 from .._world import World
-from .solver import SemiImplicitEuler
-from .trajectory import Observation, Trajectory
+from .solver import ClosedLoopTerm, solver_for
+from .system import ClosedLoop
+from .trajectory import SimulationState, Trajectory, all_finite
 
 SolverName = Literal["symplectic", "tsit5", "dopri5"]
 SOLVERS = ("symplectic", "tsit5", "dopri5")
 
+DEFAULT_SAVE_DT = 0.02  # s: 50 samples per second, plenty for the objectives and for GIFs
+_WHOLE = 1e-6  # relative tolerance of "a whole number of" (rounding of decimal inputs)
+
 
 @dataclass(frozen=True)
 class TimeGrid:
-    """The steps and save times of a simulation, fixed before anything is traced: whole
-    save intervals fill the duration and whole, equal steps fill each save interval."""
+    """The control ticks, physics steps and saved samples of a simulation, fixed before
+    anything is traced: whole control periods fill the duration, whole physics steps fill a
+    control period and whole control periods fill a save interval.
 
-    duration: float
-    num_saves: int
+    - `num_ticks`: control periods (each one step of the solver's loop).
+    - `substeps`: physics steps per control period (fixed-step solver).
+    - `save_every`: control periods per saved sample.
+    - `control_dt`: the control period, s.
+    """
+
+    num_ticks: int
     substeps: int
-
-    @property
-    def num_steps(self) -> int:
-        return self.num_saves * self.substeps
+    save_every: int
+    control_dt: float
 
     @property
     def dt(self) -> float:
-        return self.duration / self.num_steps
+        """The physics step of the fixed-step solver, s."""
+        return self.control_dt / self.substeps
+
+    @property
+    def duration(self) -> float:
+        return self.num_ticks * self.control_dt
 
     @property
     def save_dt(self) -> float:
-        return self.duration / self.num_saves
+        return self.save_every * self.control_dt
+
+    @property
+    def num_saves(self) -> int:
+        """Save intervals (the samples are one more: the start is saved too)."""
+        return self.num_ticks // self.save_every
+
+    @property
+    def num_steps(self) -> int:
+        return self.num_ticks * self.substeps
 
     @property
     def save_times(self) -> np.ndarray:
         """`num_saves + 1` times from 0 to `duration` (t = 0 is saved too)."""
-        return np.linspace(0.0, self.duration, self.num_saves + 1)
+        return np.arange(self.num_saves + 1) * self.save_dt
 
 
 def _check_seconds(name, value) -> None:
@@ -55,38 +79,158 @@ def _check_seconds(name, value) -> None:
         raise ValueError(f"{name} = {value!r}; allowed: a number of seconds > 0")
 
 
-def time_grid(duration, dt, save_dt=None) -> TimeGrid:
-    """Check the timing arguments and fix the save intervals and steps.
+def _whole(name, value, unit_name, unit) -> int:
+    """`value / unit` when it is a whole number (>= 1), else a `ValueError`."""
+    count = round(value / unit)
+    if count < 1 or abs(value - count * unit) > _WHOLE * max(value, unit):
+        below = max(1, math.floor(value / unit)) * unit
+        above = max(1, math.ceil(value / unit)) * unit
+        raise ValueError(
+            f"{name} = {value!r} is not a whole number of {unit_name} = {unit!r}; allowed: "
+            f"a multiple of {unit_name}, e.g. {below:.10g} or {above:.10g}"
+        )
+    return count
 
-    The duration is cut into `round(duration / save_dt)` equal save intervals (`save_dt`
-    defaults to 20 ms, or `dt` if that is longer), and each interval into
-    `round(save_interval / dt)` equal steps; so the step actually taken can differ a little
-    from `dt`. Raises `ValueError` naming the argument for anything not a positive number of
-    seconds, or a `dt` or `save_dt` longer than `duration`.
+
+def time_grid(duration, dt, save_dt=None, control_dt=None) -> TimeGrid:
+    """Check the timing arguments and fix the control ticks, steps and samples.
+
+    - `control_dt` (default `dt`) must be a whole number of steps `dt`;
+    - `duration` a whole number of control periods;
+    - `save_dt` a whole number of control periods that divides the duration (default: the
+        longest such interval up to 20 ms).
+
+    Nothing is rounded away silently: the samples saved never change the steps taken.
+    Raises `ValueError` naming the argument for anything not a positive number of seconds,
+    an interval longer than `duration`, or one that is not a whole number of the shorter one
+    (suggesting the nearest that are).
     """
     _check_seconds("duration", duration)
     _check_seconds("dt", dt)
-    if save_dt is None:
-        save_dt = min(max(0.02, dt), duration)
-    _check_seconds("save_dt", save_dt)
-    for name, value in (("dt", dt), ("save_dt", save_dt)):
-        if value > duration * (1 + 1e-9):
+    control_dt = dt if control_dt is None else control_dt
+    _check_seconds("control_dt", control_dt)
+    if save_dt is not None:
+        _check_seconds("save_dt", save_dt)
+    for name, value in (("dt", dt), ("control_dt", control_dt), ("save_dt", save_dt)):
+        if value is not None and value > duration * (1 + _WHOLE):
             raise ValueError(
                 f"{name} = {value!r} is longer than duration = {duration!r}; "
                 f"allowed: {name} <= duration"
             )
-    if save_dt < dt * (1 - 1e-9):
+    if control_dt < dt * (1 - _WHOLE):
         raise ValueError(
-            f"save_dt = {save_dt!r} is shorter than dt = {dt!r}; allowed: save_dt >= dt"
+            f"control_dt = {control_dt!r} is shorter than dt = {dt!r}; allowed: control_dt >= dt"
         )
-    num_saves = max(1, round(duration / save_dt))
-    substeps = max(1, round(duration / num_saves / dt))
-    return TimeGrid(float(duration), int(num_saves), int(substeps))
+    substeps = _whole("control_dt", control_dt, "dt", dt)
+    control_dt = float(substeps * dt) if control_dt == dt else float(control_dt)
+    num_ticks = _whole("duration", duration, "control_dt" if substeps > 1 else "dt", control_dt)
+    if save_dt is None:
+        most = max(1, math.floor(DEFAULT_SAVE_DT / control_dt * (1 + _WHOLE)))
+        save_every = max(k for k in range(1, most + 1) if num_ticks % k == 0)
+    else:
+        if save_dt < control_dt * (1 - _WHOLE):
+            which = "control_dt" if substeps > 1 else "dt"
+            raise ValueError(
+                f"save_dt = {save_dt!r} is shorter than {which} = {control_dt!r}; allowed: "
+                f"save_dt >= {which}"
+            )
+        save_every = _whole("save_dt", save_dt, "control_dt" if substeps > 1 else "dt", control_dt)
+        if num_ticks % save_every:
+            raise ValueError(
+                f"duration = {duration!r} is not a whole number of save_dt = {save_dt!r}; "
+                f"allowed: a save_dt that divides the duration"
+            )
+    return TimeGrid(int(num_ticks), int(substeps), int(save_every), float(control_dt))
 
 
 def _check_solver(solver) -> None:
     if solver not in SOLVERS:
         raise ValueError(f"solver = {solver!r}; allowed: one of {', '.join(map(repr, SOLVERS))}")
+
+
+def _tolerances(rtol, atol):
+    double = jnp.result_type(float) == jnp.float64
+    rtol = (1e-8 if double else 1e-5) if rtol is None else rtol
+    atol = (1e-10 if double else 1e-6) if atol is None else atol
+    return rtol, atol
+
+
+def _integrate(
+    system: ClosedLoop,
+    y0,
+    t0,
+    grid: TimeGrid,
+    solver: str,
+    *,
+    rtol=None,
+    atol=None,
+    max_steps: int = 100_000,
+):
+    """Integrate the closed loop from `y0 = (body, controller)` at time `t0` over the grid:
+    one solver step per save interval (`save_every` control periods), a sample after each.
+    Shared by one controller and a batch (the system's layout).
+
+    Returns `(ts, samples, final, ok)`: the saved times, the samples (`system.sample` at
+    each, time leading), the final `(body, controller)` and whether the solver succeeded.
+
+    The tick times are `(n0 + k) control_dt` with `n0 = round(t0 / control_dt)`, computed
+    the same way whatever the start, so a continued simulation sees the very times (and
+    computes the very states) the uninterrupted one did.
+    """
+    rtol, atol = _tolerances(rtol, atol)
+    dtype = jnp.result_type(float)
+    n0 = jnp.round(jnp.asarray(t0, dtype=dtype) / grid.control_dt)
+    steps = n0 + grid.save_every * jnp.arange(grid.num_saves + 1, dtype=dtype)
+    ticks = steps * jnp.asarray(grid.control_dt, dtype=dtype)  # one solver step a sample
+    saveat = dfx.SaveAt(
+        subs=[dfx.SubSaveAt(t0=True, steps=True, fn=system.sample), dfx.SubSaveAt(t1=True)]
+    )
+    sol = dfx.diffeqsolve(
+        ClosedLoopTerm(),
+        solver_for(solver, grid, rtol=rtol, atol=atol, max_steps=max_steps),
+        t0=ticks[0],
+        t1=ticks[-1],
+        dt0=None,
+        y0=y0,
+        args=system,
+        saveat=saveat,
+        stepsize_controller=dfx.StepTo(ticks),
+        max_steps=grid.num_saves,
+        # Reverse mode (gradient refinement) keeps every saved state: the backward pass then
+        # recomputes one save interval at a time.
+        adjoint=dfx.RecursiveCheckpointAdjoint(checkpoints=grid.num_saves),
+        throw=False,
+    )
+    samples, final = sol.ys
+    final = jax.tree_util.tree_map(lambda a: a[-1], final)
+    return sol.ts[0], samples, final, sol.result == dfx.RESULTS.successful
+
+
+def _trajectory(ts, samples, final: SimulationState, finite) -> Trajectory:
+    """A Trajectory from the samples `(observations, senses)` and the final state."""
+    obs, senses = samples
+    return Trajectory(
+        ts=ts,
+        points=obs.points,
+        com=obs.com,
+        frame=obs.frame,
+        contact=obs.contact,
+        finite=finite,
+        final=final,
+        senses=senses,
+    )
+
+
+def _start(system: ClosedLoop, body: AbstractBody, initial_state):
+    """`(t0, (body state, controller state))` for one controller."""
+    if isinstance(initial_state, SimulationState):
+        return initial_state.t, (BodyState(*initial_state.body), initial_state.controller)
+    body_state = body.initial_state() if initial_state is None else BodyState(*initial_state)
+    return jnp.asarray(0.0, dtype=float), (body_state, system.start(body_state))
+
+
+def _prepare(body: AbstractBody, controller: AbstractController | None):
+    return None if controller is None else controller.prepare(body)
 
 
 def simulate(
@@ -97,6 +241,7 @@ def simulate(
     *,
     dt: float = 1e-3,
     save_dt: float | None = None,
+    control_dt: float | None = None,
     solver: SolverName = "symplectic",
     rtol: float | None = None,
     atol: float | None = None,
@@ -105,205 +250,164 @@ def simulate(
 ) -> Trajectory:
     """Simulate `body` driven by `controller` in `world` for `duration` seconds.
 
-    Write the call for one controller and `jax.vmap` it over a batch of controllers (or use
-    `Task.evaluate`, which batches the same computation in a faster layout).
+    The controller runs closed loop: at every control tick (every `control_dt`) it updates
+    its state from the time and the body's senses, and its actuation is held until the next
+    tick (see `AbstractController`). Write the call for one controller and `jax.vmap` it
+    over a batch (or use `Task.evaluate`, which runs the same functions in a faster batched
+    layout).
 
     **Arguments:**
 
-    - `body`: a `Lattice` (or any `AbstractBody`), starting at rest in its rest pose.
-    - `controller`: what actuates the body (`None`: no actuation, the body keeps its rest
-        lengths).
+    - `body`: a `Lattice`, a `Figure` (or any `AbstractBody`).
+    - `controller`: what actuates the body (`None`: no actuation).
     - `world`: gravity, floor and contact model.
-    - `duration`: simulated time in seconds.
-    - `dt`: step of the fixed-step solver (rounded so whole steps fill `duration`); for the
-        adaptive solvers, the first step tried.
-    - `save_dt`: interval between saved samples (rounded to whole steps; default 20 ms).
-        The final state is always saved.
+    - `duration`: simulated time in seconds (a whole number of control periods).
+    - `dt`: step of the fixed-step solver; for the adaptive solvers, the first step tried.
+    - `save_dt`: interval between saved samples, a whole number of control periods that
+        divides the duration (default: the longest such interval up to 20 ms). Saving
+        never changes the states computed.
+    - `control_dt`: the control period, a whole number of steps `dt` (default `dt`).
     - `solver`: `"symplectic"` (semi-implicit Euler at fixed `dt`: the fast path of the
         search) or `"tsit5"` / `"dopri5"` (adaptive fifth order with error control
-        `rtol`, `atol`, as the first paper used: for playback and accuracy checks).
+        `rtol`, `atol`, as the first paper used, integrating from tick to tick: for
+        playback and accuracy checks).
     - `rtol`, `atol`: tolerances of the adaptive solvers; by default `1e-5`, `1e-6` in
-        float32 (tighter cannot be met in single precision) and `1e-8`, `1e-10` in float64.
-    - `max_steps`: step budget of the adaptive solvers; a run that exhausts it is flagged
-        `finite=False`.
-    - `initial_state`: where to start instead of the rest pose at rest (e.g.
-        `lattice.state(points=..., velocities=...)`).
+        float32 and `1e-8`, `1e-10` in float64.
+    - `max_steps`: step budget of the adaptive solvers over the whole simulation; a run that
+        exhausts it is flagged `finite=False`.
+    - `initial_state`: where to start instead of the rest pose at rest: a body state (e.g.
+        `lattice.state(points=...)`, or `trajectory.final.body` to start this controller
+        where another motion ended, at time 0), or a `SimulationState`
+        (`trajectory.final`) to continue a simulation of the same controller from its end:
+        on the fixed-step path `[0, T1]` then `[T1, T]` computes bitwise what `[0, T]`
+        does.
 
-    **Returns:** a `Trajectory` sampled at the save times; `trajectory.finite` is `False` for
-    a run that blew up (it never raises for that, so it is safe inside a batch).
+    **Returns:** a `Trajectory` sampled at the save times, with the final state; its
+    `finite` is `False` for a run that blew up (it never raises for that, so it is safe
+    inside a batch).
 
-    **Raises:** `ValueError` for a non-positive `duration`, `dt` or `save_dt`, or an unknown
-    solver, before anything is compiled.
+    **Raises:** `ValueError` for a non-positive or inconsistent `duration`, `dt`,
+    `control_dt` or `save_dt`, or an unknown solver, before anything is compiled.
     """
-    grid = time_grid(duration, dt, save_dt)
+    grid = time_grid(duration, dt, save_dt, control_dt)
     _check_solver(solver)
-    dynamics = body.dynamics()
-    plan = None if controller is None else controller.prepare(body)
-
-    def vector_field(t, y, args):
-        ctrl, plan = args
-        actuation = None if ctrl is None else ctrl.actuation(t, plan)
-        return dynamics.rates(y, actuation, world)
-
-    obs, ok = _solve(
-        grid,
-        vector_field,
-        body.initial_state() if initial_state is None else initial_state,
-        (controller, plan),
-        solver,
-        observe=lambda positions: dynamics.observe(positions, world),
-        rtol=rtol,
-        atol=atol,
-        max_steps=max_steps,
+    plan = _prepare(body, controller)
+    system = ClosedLoop(body.dynamics(), controller, plan, world, grid.control_dt)
+    t0, y0 = _start(system, body, initial_state)
+    system = system.with_start(y0[1])
+    ts, samples, (body_state, control), ok = _integrate(
+        system, y0, t0, grid, solver, rtol=rtol, atol=atol, max_steps=max_steps
     )
-    return _trajectory(grid, obs, ok)
+    final = SimulationState(ts[-1], body_state, system.restore(control))
+    obs = samples[0]
+    finite = ok & all_finite(obs.points, obs.com, obs.frame, final.body, final.controller)
+    return _trajectory(ts, samples, final, finite)
 
 
-def _solve(
-    grid,
-    vector_field,
-    y0,
-    args,
-    solver,
-    *,
-    observe=None,
-    rtol=None,
-    atol=None,
-    max_steps=100_000,
-    scheduled=None,
-):
-    """Integrate; return `observe(positions)` at the save times (time leading on every
-    leaf; default: the positions themselves) and whether the solver succeeded. Shared by the
-    single and the batched paths.
-
-    The observables are computed as each sample is saved, inside the solver's loop, where
-    the state is small and stays in the cache: observing all saved samples at once
-    afterwards worked on arrays of every sample of every controller, which spilled out of the
-    cache and cost a sixth of a whole evaluation.
-
-    `scheduled` (fixed step only) is a pair `(schedule, rates)` that `vector_field` is made
-    of, `vector_field(t, y, args) = rates(t, y, args, schedule(t, args))`, for the solver to
-    carry the schedule from step to step (see `SemiImplicitEuler`)."""
-    term = dfx.ODETerm(vector_field)
-    save_ts = jnp.asarray(grid.save_times, dtype=jnp.result_type(float))
-    observe = (lambda x: x) if observe is None else observe
-    sample = lambda t, y, args: observe(y[0])  # observables depend on positions alone
-    if solver == "symplectic":
-        # One diffrax step per save interval, each made of `substeps` physics steps.
-        sol = dfx.diffeqsolve(
-            term,
-            SemiImplicitEuler(grid.substeps, *(scheduled or (None, None))),
-            t0=save_ts[0],
-            t1=save_ts[-1],
-            dt0=None,
-            y0=y0,
-            args=args,
-            saveat=dfx.SaveAt(t0=True, steps=True, fn=sample),
-            stepsize_controller=dfx.StepTo(save_ts),
-            max_steps=grid.num_saves,
-            throw=False,
-        )
-    else:
-        method = dfx.Tsit5() if solver == "tsit5" else dfx.Dopri5()
-        double = jnp.result_type(float) == jnp.float64
-        rtol = (1e-8 if double else 1e-5) if rtol is None else rtol
-        atol = (1e-10 if double else 1e-6) if atol is None else atol
-        sol = dfx.diffeqsolve(
-            term,
-            method,
-            t0=save_ts[0],
-            t1=save_ts[-1],
-            dt0=grid.dt,
-            y0=y0,
-            args=args,
-            saveat=dfx.SaveAt(ts=save_ts, fn=sample),
-            stepsize_controller=dfx.PIDController(rtol=rtol, atol=atol),
-            max_steps=max_steps,
-            throw=False,
-        )
-    return sol.ys, sol.result == dfx.RESULTS.successful
+def _to_last(tree):
+    return jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -1), tree)
 
 
-def _trajectory(grid, obs: Observation, ok) -> Trajectory:
-    """Assemble a Trajectory from observations with leading axes (..., time)."""
-    lead = obs.com.shape[:-2]
-    finite = ok
-    for a in (obs.points, obs.com, obs.frame):
-        finite = finite & jnp.all(jnp.isfinite(a).reshape(*lead, -1), axis=-1)
-    ts = jnp.broadcast_to(jnp.asarray(grid.save_times, obs.com.dtype), (*lead, grid.num_saves + 1))
-    return Trajectory(
-        ts=ts, points=obs.points, com=obs.com, frame=obs.frame, contact=obs.contact, finite=finite
+def _to_first(tree):
+    return jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, -1, 0), tree)
+
+
+def _batched_start(system: ClosedLoop, body: AbstractBody, initial_state, batch: int):
+    """`(t0, y0)` for a batch, `y0` in the batch-last layout."""
+    broadcast = lambda tree: jax.tree_util.tree_map(
+        lambda a: jnp.broadcast_to(a, (batch, *jnp.shape(a))), tree
     )
+    if isinstance(initial_state, SimulationState):
+        t = jnp.asarray(initial_state.t)
+        if t.ndim:
+            # One grid serves the batch, so its states must share their time.
+            t = eqx.error_if(t, jnp.any(t != t[0]), "a batch of states must share their time")
+            t = t[0]
+        body_state = BodyState(*initial_state.body)
+        control = initial_state.controller
+        if _is_single(body, body_state):
+            body_state, control = broadcast(body_state), broadcast(control)
+        return t, _to_last((body_state, control))
+    body_state = body.initial_state() if initial_state is None else BodyState(*initial_state)
+    if _is_single(body, body_state):
+        body_state = broadcast(body_state)
+    body_state = _to_last(body_state)
+    return jnp.asarray(0.0, dtype=float), (body_state, system.start(body_state))
+
+
+def _is_single(body: AbstractBody, state) -> bool:
+    """Whether a body state is one body's (rather than a batch with a leading axis)."""
+    reference = jax.tree_util.tree_leaves(body.initial_state())
+    given = jax.tree_util.tree_leaves(state)
+    return [jnp.shape(a) for a in given] == [jnp.shape(a) for a in reference]
 
 
 def simulate_batch(
     body: AbstractBody,
-    controllers: AbstractController,
+    controllers: AbstractController | None,
     world: World,
     duration: float,
     *,
     dt: float = 1e-3,
     save_dt: float | None = None,
+    control_dt: float | None = None,
+    solver: SolverName = "symplectic",
+    initial_state=None,
+    batch: int | None = None,
+    record_senses: bool = False,
+    rtol: float | None = None,
+    atol: float | None = None,
+    max_steps: int = 100_000,
 ) -> Trajectory:
-    """`jax.vmap(simulate)` over `controllers` (leading batch axis), computed in the fast
-    batch-last layout: the single-controller step is vmapped with the batch as the last
-    (contiguous) axis of every array, so XLA runs each step as a few vectorised loops over the
-    batch, and diffrax integrates the whole batch as one system (fixed step only). Returns
-    the same trajectories as the plain `vmap`, with a leading batch axis.
+    """`jax.vmap(simulate)` over `controllers` (leading batch axis), computed in the
+    batch-last layout: the same per-step functions, called on whole batches with the batch
+    as the last (contiguous) axis of every array, so XLA runs each step as a few vectorised
+    loops over the batch, and diffrax integrates the whole batch as one system. Returns the
+    same trajectories as the plain `vmap`, with a leading batch axis.
+
+    `initial_state` is shared (one body state, or one `SimulationState`) or per controller
+    (a leading batch axis). `controllers=None` simulates `batch` unactuated bodies.
+    `record_senses` also saves the senses each controller perceives (`Trajectory.senses`).
     """
-    grid = time_grid(duration, dt, save_dt)
-    dynamics = body.dynamics()
-    plans = jax.vmap(lambda c: c.prepare(body))(controllers)
-    to_last = lambda tree: jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -1), tree)
-    args = (to_last(controllers), to_last(plans))
-    batch = jax.tree_util.tree_leaves(controllers)[0].shape[0]
-    y0 = jax.tree_util.tree_map(
-        lambda a: jnp.broadcast_to(a[..., None], (*a.shape, batch)), body.initial_state()
-    )
-
-    # The controllers' choice at each step (`schedule`) is carried by the solver from one
-    # step to the next, so it is made once per controller, not once per entry of the
-    # actuation built from it (see `SemiImplicitEuler`).
-    if type(controllers).supports_batch_last:
-        batched_schedule = lambda t, ctrl: ctrl.schedule(t)
-        batched_actuation = lambda s, ctrl, plan: ctrl.actuation_from(s, plan)
+    grid = time_grid(duration, dt, save_dt, control_dt)
+    _check_solver(solver)
+    if controllers is not None:
+        batch = jax.tree_util.tree_leaves(controllers)[0].shape[0]
+        plans = jax.vmap(lambda c: _prepare(body, c))(controllers)
     else:
-        batched_schedule = jax.vmap(
-            lambda t, ctrl: ctrl.schedule(t), in_axes=(None, -1), out_axes=-1
-        )
-        batched_actuation = jax.vmap(
-            lambda s, ctrl, plan: ctrl.actuation_from(s, plan), in_axes=-1, out_axes=-1
-        )
-    if type(dynamics).supports_batch_last:
-        batched_rates = lambda y, act: dynamics.rates(y, act, world)
-    else:
-        batched_rates = jax.vmap(
-            lambda y, act: dynamics.rates(y, act, world), in_axes=-1, out_axes=-1
-        )
-
-    # diffrax traces the vector field several times (structure checks, the loop body twice,
-    # and the semi-implicit step calls it twice). Under `jax.jit(inline=True)` every call
-    # with the same shapes reuses one trace, inlined where it is called (the computation
-    # is unchanged; tracing a figure's step takes a large share of its compile time).
-    batched_rates = jax.jit(batched_rates, inline=True)
-
-    schedule = lambda t, args: batched_schedule(t, args[0])
-    rates = lambda t, y, args, s: batched_rates(y, batched_actuation(s, *args))
-    vector_field = lambda t, y, args: rates(t, y, args, schedule(t, args))
-    # `observe` works elementwise over trailing batch axes: each saved sample is observed for
-    # the whole batch at once, the batch staying the contiguous last axis.
-    obs, ok = _solve(
-        grid,
-        vector_field,
-        y0,
-        args,
-        "symplectic",
-        observe=lambda positions: dynamics.observe(positions, world),
-        scheduled=(schedule, rates),
+        plans = None
+    system = ClosedLoop(
+        body.dynamics(),
+        None if controllers is None else _to_last(controllers),
+        _to_last(plans),
+        world,
+        grid.control_dt,
+        batched=True,
+        record_senses=record_senses,
     )
-    # (time, ..., batch) -> (batch, time, ...)
-    obs = jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, -1, 0), obs)
-    return _trajectory(grid, obs, ok)
+    t0, y0 = _batched_start(system, body, initial_state, batch)
+    system = system.with_start(y0[1])
+    ts, samples, final, ok = _integrate(
+        system, y0, t0, grid, solver, rtol=rtol, atol=atol, max_steps=max_steps
+    )
+    # (time, ..., batch) -> (batch, time, ...); final (..., batch) -> (batch, ...)
+    obs, senses = _to_first(samples)
+    body_state, control = _to_first((final[0], system.restore(final[1])))
+    finite = ok & _per_batch_finite((obs.points, obs.com, obs.frame, body_state, control))
+    ts = jnp.broadcast_to(ts, (batch, ts.shape[0]))
+    final = SimulationState(ts[:, -1], body_state, control)
+    return _trajectory(ts, (obs, senses), final, finite)
+
+
+def _per_batch_finite(tree):
+    """Per batch element (leading axis), whether every floating leaf is finite."""
+    ok = None
+    for leaf in jax.tree_util.tree_leaves(tree):
+        if not jnp.issubdtype(jnp.result_type(leaf), jnp.floating):
+            continue
+        good = jnp.all(jnp.isfinite(leaf).reshape(leaf.shape[0], -1), axis=1)
+        ok = good if ok is None else ok & good
+    return ok
 
 
 __all__ = ["SOLVERS", "TimeGrid", "simulate", "simulate_batch", "time_grid"]

@@ -1,8 +1,12 @@
-"""What a simulation returns: the observables every body reports, at saved times."""
+"""What a simulation returns: the observables every body reports at saved times, and the full
+state it ended in."""
+
+from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, PyTree
 
 
 class Observation(eqx.Module):
@@ -23,13 +27,45 @@ class Observation(eqx.Module):
     contact: Bool[Array, " num_points"]
 
 
-class Trajectory(eqx.Module):
-    """A simulated motion, sampled at `ts`. Leading axis of every field but `finite` is time.
+class SimulationState(eqx.Module):
+    """The full state of a simulation at one instant: enough to continue it exactly.
 
-    - `ts`: `(num_saves,)` saved times, from 0 to the duration.
+    - `t`: the time, s (on the control grid: a whole number of control periods).
+    - `body`: the body's `BodyState` (`(positions, velocities)`, named by the body).
+    - `controller`: the controller's `ControllerState` (`(discrete, continuous)`), as it is
+        before the control tick at `t`.
+
+    `Trajectory.final` holds the state a simulation ended in; `simulate(...,
+    initial_state=trajectory.final)` (or `Task.simulate`) continues the same controller from
+    it. To start *another* controller where a motion ended (seriatim searches, composite
+    motions), pass only the body's state, `trajectory.final.body`: the new controller then
+    starts from its own initial state at its own time 0.
+
+    Under `vmap` (or from a batched call) every leaf gains a leading batch axis.
+    """
+
+    t: Float[Array, ""]
+    body: Any
+    controller: Any
+
+    def __init__(self, t, body, controller):
+        self.t = jnp.asarray(t, dtype=float)
+        self.body = body
+        self.controller = controller
+
+
+class Trajectory(eqx.Module):
+    """A simulated motion, sampled at `ts`. Leading axis of every field but `finite` and
+    `final` is time.
+
+    - `ts`: `(num_saves,)` saved times, from the start to the end of the simulation.
     - `points`, `com`, `frame`, `contact`: the `Observation` fields stacked over `ts`.
     - `finite`: whether the run stayed finite (no NaN or infinity anywhere, and the solver
         succeeded). A run that blew up is data, not an exception; objectives score it worst.
+    - `final`: the `SimulationState` at the end (continue from it).
+    - `senses`: `(num_saves, num_senses)` the senses the controller perceived at the saved
+        times (`AbstractController.perceive`), when asked for (`Task.evaluate_sensed`,
+        `Task.trajectories(..., senses=True)`); otherwise `None`.
 
     Under `vmap` every field gains a leading batch axis.
     """
@@ -40,6 +76,8 @@ class Trajectory(eqx.Module):
     frame: Float[Array, "num_saves 3 3"]
     contact: Bool[Array, "num_saves num_points"]
     finite: Bool[Array, ""]
+    final: SimulationState | None = None
+    senses: Float[Array, "num_saves num_senses"] | None = None
 
     @property
     def forward(self) -> Float[Array, "num_saves 3"]:
@@ -57,10 +95,8 @@ class Trajectory(eqx.Module):
         return self.frame[..., :, 2]
 
 
-def all_finite(*trees) -> Bool[Array, ""]:
+def all_finite(*trees: PyTree) -> Bool[Array, ""]:
     """True when every floating-point leaf of the given pytrees is finite."""
-    import jax
-
     ok = jnp.asarray(True)
     for leaf in jax.tree_util.tree_leaves(trees):
         if jnp.issubdtype(jnp.result_type(leaf), jnp.floating):

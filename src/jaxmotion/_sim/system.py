@@ -1,0 +1,183 @@
+"""The closed loop of a body and a controller: the per-step functions every solver and every
+layout runs (senses, control tick, rates, samples), written once.
+
+A simulation is a hybrid system (`notes/closed-loop.md`):
+
+- continuous state: the body's `(positions, velocities)` and the controller's continuous part,
+  integrated together;
+- discrete state: the controller's `discrete` part, changed only at control ticks
+  `t_k = k control_dt`: `d <- update(t_k, d, senses(x(t_k)))`, then held until `t_{k+1}`.
+
+`ClosedLoop` holds the pieces of one simulation and exposes the functions the solvers call.
+Its `batched` layout runs a batch of controllers with the batch as the *last* axis of every
+array (so XLA's CPU loops vectorise over controllers): the same functions, called directly on
+the batch by bodies and controllers that support it (`supports_batch_last`) and `vmap`ped over
+the last axis otherwise. The state the solvers carry is `(BodyState, ControllerState)`.
+"""
+
+import dataclasses
+import functools
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._body.base import AbstractDynamics, BodyState
+from .._control.base import AbstractController, ControllerState
+from .._world import World
+from .trajectory import Observation
+
+
+class ClosedLoop(eqx.Module):
+    """One body driven by one controller (or a batch of them, `batched`) in a world.
+
+    - `dynamics`: the body prepared for simulation.
+    - `controller`: the controller (`None`: no actuation); batch-last when `batched`.
+    - `plan`: `controller.prepare(body)`, laid out like the controller.
+    - `world`: gravity, floor, contact.
+    - `control_dt`: the control period, s.
+    - `batched`: whether every state, controller and plan leaf has a trailing batch axis.
+    - `record_senses`: whether samples include the senses the controller perceives.
+    - `control_dtypes`: the dtypes of the controller's state leaves (`with_start`).
+    """
+
+    dynamics: AbstractDynamics
+    controller: AbstractController | None
+    plan: Any
+    world: World
+    control_dt: float = eqx.field(static=True)
+    batched: bool = eqx.field(static=True, default=False)
+    record_senses: bool = eqx.field(static=True, default=False)
+    control_dtypes: Any = eqx.field(static=True, default=None)
+
+    # ------------------------------------------------------------------ layout
+
+    def _body(self, fn):
+        """`fn(*batched)` of the body's arrays, for this layout: called directly on a batch
+        by dynamics that support trailing batch axes, else `vmap`ped over the last axis."""
+        if not self.batched or type(self.dynamics).supports_batch_last:
+            return fn
+        return jax.vmap(fn, in_axes=-1, out_axes=-1)
+
+    def _control(self, name, in_axes):
+        """`type(controller).name` as a function of the controller and the method's other
+        arguments (`in_axes` says which carry the batch: -1, or None for shared ones)."""
+        method = getattr(type(self.controller), name)
+        if not self.batched or type(self.controller).supports_batch_last:
+            return method
+        return jax.vmap(method, in_axes=(-1, *in_axes), out_axes=-1)
+
+    @property
+    def reads_senses(self) -> bool:
+        return self.controller is not None and type(self.controller).reads_senses
+
+    def restore(self, control: ControllerState) -> ControllerState:
+        """The controller's state in its own dtypes. diffrax carries every leaf of the
+        simulation state in the time's floating dtype (an integer such as an active rule's
+        index stays exact there); the controller always sees the dtypes its `init` gives."""
+        if self.control_dtypes is None:
+            return control
+        return jax.tree_util.tree_map(lambda a, d: a.astype(d), control, self.control_dtypes)
+
+    def with_start(self, control: ControllerState) -> "ClosedLoop":
+        """This system, remembering the dtypes of the controller's state (see `restore`)."""
+        dtypes = jax.tree_util.tree_map(lambda a: jnp.result_type(a), control)
+        return dataclasses.replace(self, control_dtypes=dtypes)
+
+    # ------------------------------------------------------------------ the loop's pieces
+
+    def senses(self, body: BodyState):
+        """The body's senses (`(num_senses, *batch)`)."""
+        return self._body(lambda b: self.dynamics.senses(b, self.world, self.control_dt))(body)
+
+    def start(self, body: BodyState) -> ControllerState:
+        """The controller's state over the first period (`init`, given the senses of the
+        starting state)."""
+        if self.controller is None:
+            return ControllerState()
+        senses = self.senses(body) if self.reads_senses else None
+        return self._control("init", (-1, -1))(self.controller, senses, self.plan)
+
+    def tick(self, t, body: BodyState, control: ControllerState) -> ControllerState:
+        """The control tick at `t`: the controller's state for the next period, updated
+        from the body's senses."""
+        if self.controller is None:
+            return control
+        senses = self.senses(body) if self.reads_senses else None
+        update = self._control("update", (None, -1, -1, -1))
+        new = update(self.controller, t, self.restore(control), senses, self.plan)
+        # Back in the carried dtypes (see `restore`).
+        return jax.tree_util.tree_map(lambda a, c: a.astype(c.dtype), new, control)
+
+    def rates(self, t, positions, velocities, discrete):
+        """Rates of the continuous state, `(positions, velocities)` each a pair `(body,
+        controller continuous part)`, with the discrete controller state held at
+        `discrete`."""
+        body = BodyState(positions[0], velocities[0])
+        continuous = None if positions[1] is None else (positions[1], velocities[1])
+        actuation = None
+        if self.controller is not None:
+            control = self.restore(ControllerState(discrete, continuous))
+            actuation = self._control("actuation", (None, -1, -1))(
+                self.controller, t, control, self.plan
+            )
+        body_rates = self._body(lambda b, a: self.dynamics.rates(b, a, self.world))(body, actuation)
+        if continuous is None:
+            return (body_rates.positions, None), (body_rates.velocities, None)
+        c_pos, c_vel = self._control("rates", (None, -1, -1))(
+            self.controller, t, control, self.plan
+        )
+        return (body_rates.positions, c_pos), (body_rates.velocities, c_vel)
+
+    def sample(self, t, y, args=None) -> tuple[Observation, Any]:
+        """What is saved at a sample: the observables and (if recorded) the senses the
+        controller would perceive at a tick here."""
+        del t, args
+        body, control = y
+        obs = self._body(lambda p: self.dynamics.observe(p, self.world))(body.positions)
+        if not self.record_senses:
+            return obs, None
+        senses = self.senses(body)
+        if self.controller is not None:
+            perceive = self._control("perceive", (-1, -1, -1))
+            senses = perceive(self.controller, self.restore(control), senses, self.plan)
+        return obs, senses
+
+
+@functools.partial(eqx.filter_jit, inline=True)
+def _body_rates(dynamics, body, actuation, world, vmapped: bool):
+    """The body's rates. diffrax traces a solver's step several times (shape checks, the
+    loop body), and the step calls the rates twice; under `jit(inline=True)` every call
+    with the same shapes reuses one trace, inlined where it is called (the computation is
+    unchanged; tracing a figure's step is a large share of its compile time)."""
+    fn = lambda b, a: dynamics.rates(b, a, world)
+    if vmapped:
+        fn = jax.vmap(fn, in_axes=-1, out_axes=-1)
+    return fn(body, actuation)
+
+
+def split(y):
+    """`(body, controller)` -> positions, velocities (each `(body, controller continuous)`)
+    and the discrete controller state."""
+    body, control = y
+    continuous = control.continuous
+    positions = (body.positions, None if continuous is None else continuous[0])
+    velocities = (body.velocities, None if continuous is None else continuous[1])
+    return positions, velocities, control.discrete
+
+
+def join(positions, velocities, discrete):
+    """The inverse of `split`."""
+    body = BodyState(positions[0], velocities[0])
+    continuous = None if positions[1] is None else (positions[1], velocities[1])
+    return body, ControllerState(discrete, continuous)
+
+
+def axpy(h, dx, x):
+    """`x + h dx` on matching pytrees."""
+    return jax.tree_util.tree_map(lambda a, b: b + h * a, dx, x)
+
+
+def zeros_like_tree(tree):
+    return jax.tree_util.tree_map(jnp.zeros_like, tree)
