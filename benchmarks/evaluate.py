@@ -122,61 +122,52 @@ def perf_lab_rate(path: Path, batch: int, repeats: int) -> float | None:
 
 
 def diffrax_overhead(batch: int, dt: float, repeats: int) -> dict:
-    """`simulate_batch`'s diffrax solve against a `lax.scan` of the same step, same saving."""
+    """`simulate_batch`'s diffrax solve against a `lax.scan` of the same solver step (the
+    save interval's control periods) and the same saving, without diffrax's loop."""
     import jax
     import jax.numpy as jnp
     import jax.random as jr
 
-    from jaxmotion._sim.simulate import _solve, time_grid
+    from jaxmotion._sim.simulate import _batched_start, _integrate, _to_last, time_grid
+    from jaxmotion._sim.solver import solver_for
+    from jaxmotion._sim.system import ClosedLoop
 
     task = make_task("cube", dt)
     params = task.sample(batch, key=jr.key(0))
     grid = time_grid(task.duration, task.dt, task.save_dt)
-    dynamics = task.body.dynamics()
-    world = task.world
 
     def setup(params):
         plans = jax.vmap(lambda c: c.prepare(task.body))(params)
-        last = lambda tree: jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -1), tree)
-        y0 = jax.tree_util.tree_map(
-            lambda a: jnp.broadcast_to(a[..., None], (*a.shape, batch)), task.body.initial_state()
+        system = ClosedLoop(
+            task.body.dynamics(),
+            _to_last(params),
+            _to_last(plans),
+            task.world,
+            grid.control_dt,
+            batched=True,
         )
-        return (last(params), last(plans)), y0
-
-    # The step `simulate_batch` takes: the controllers' choice (`schedule`) carried from one
-    # step to the next, the actuation built from it, the batch-last rates.
-    schedule = lambda t, args: args[0].schedule(t)
-    rates = lambda t, y, args, s: dynamics.rates(y, args[0].actuation_from(s, args[1]), world)
-    vector_field = lambda t, y, args: rates(t, y, args, schedule(t, args))
+        t0, y0 = _batched_start(system, task.body, None, batch)
+        return system.with_start(y0[1]), t0, y0
 
     @jax.jit
     def with_diffrax(params):
-        args, y0 = setup(params)
-        positions, _ = _solve(
-            grid, vector_field, y0, args, "symplectic", scheduled=(schedule, rates)
-        )
-        return positions
+        system, t0, y0 = setup(params)
+        _, samples, _, _ = _integrate(system, y0, t0, grid, "symplectic")
+        return samples[0].com
 
     @jax.jit
     def with_scan(params):
-        args, y0 = setup(params)
-        save_ts = jnp.asarray(grid.save_times, dtype=float)
+        system, t0, y0 = setup(params)
+        solver = solver_for("symplectic", grid, rtol=0.0, atol=0.0, max_steps=0)
+        save_dt = jnp.asarray(grid.save_dt, dtype=float)
 
         def interval(y, k):
-            t0 = save_ts[k]
-            h = (save_ts[k + 1] - t0) / grid.substeps
+            t = k * save_dt
+            y, *_ = solver.step(None, t, t + save_dt, y, system, None, False)
+            return y, system.sample(t + save_dt, y)[0].com
 
-            def euler(i, carry):
-                (x, v), s = carry
-                _, a = rates(t0 + i * h, (x, v), args, s)
-                v = v + h * a
-                return (x + h * v, v), schedule(t0 + (i + 1) * h, args)
-
-            y, _ = jax.lax.fori_loop(0, grid.substeps, euler, (y, schedule(t0, args)))
-            return y, y[0]
-
-        _, saved = jax.lax.scan(interval, y0, jnp.arange(grid.num_saves))
-        return jnp.concatenate([y0[0][None], saved])
+        _, saved = jax.lax.scan(interval, y0, jnp.arange(grid.num_saves, dtype=float))
+        return jnp.concatenate([system.sample(t0, y0)[0].com[None], saved])
 
     out = {}
     for _ in range(2):  # interleaved, twice, against drift of the machine's speed

@@ -1,8 +1,9 @@
 """Throughput of `Task.evaluate` for articulated figures (the second paper's characters).
 
 A 1,000-step evaluation (T = 5 s at dt = 5 ms) of Star-Man, Cujo and Rex with random
-time-based BSR controllers (R = 4) at B = 1, 100 and 1000, on every CPU core (one JAX device
-per core), each figure in a fresh process so its compile time is its own.
+time-based BSR controllers (R = 4), and of Star-Man with random sense-based ones (R = 10, the
+paper's, over his 12 senses), at B = 1, 100 and 1000, on every CPU core (one JAX device per
+core), each in a fresh process so its compile time is its own.
 
     python benchmarks/figures.py            # the table, and benchmarks/figures.json
     python benchmarks/figures.py --quick    # B = 1 and 100, one timed call
@@ -20,12 +21,17 @@ import sys
 import time
 from pathlib import Path
 
-FIGURES = ("star_man", "cujo", "rex")
+CASES = (
+    ("star_man", "time_bsr"),
+    ("star_man", "sense_bsr"),
+    ("cujo", "time_bsr"),
+    ("rex", "time_bsr"),
+)
 QUOTED = {"MuJoCo C (ant, 2 threads)": 33.0, "MJX (ant, B=1000)": 15.0, "paper (Rex)": 3.3}
 DT, DURATION = 0.005, 5.0
 
 
-def child(name: str, batches: list[int], repeats: int) -> dict:
+def child(name: str, family: str, batches: list[int], repeats: int) -> dict:
     import jax
     import jax.random as jr
 
@@ -33,15 +39,25 @@ def child(name: str, batches: list[int], repeats: int) -> dict:
 
     jm.use_cpu_cores()
     fig = getattr(jm.figures, name)()
+    if family == "sense_bsr":
+        space = jm.SenseBSRSpace(fig, num_rules=10, tau_min=0.05, tau_max=DURATION / 4)
+    else:
+        space = jm.TimeBSRSpace(fig, num_rules=4, t_per=1.0, tau_min=0.05, tau_max=DURATION / 4)
     task = jm.Task(
         fig,
         jm.World(floor_stiffness=1.0e4, floor_damping=100.0, friction_velocity=0.1),
-        jm.TimeBSRSpace(fig, num_rules=4, t_per=1.0, tau_min=0.05, tau_max=DURATION / 4),
+        space,
         jm.Objective({"forward": 1.0}),
         duration=DURATION,
         dt=DT,
     )
-    out = {"figure": name, "devices": len(jax.devices()), "steps": round(DURATION / DT), "B": {}}
+    out = {
+        "figure": name,
+        "family": family,
+        "devices": len(jax.devices()),
+        "steps": round(DURATION / DT),
+        "B": {},
+    }
     for b in batches:
         first = task.sample(b, key=jr.key(0))
         start = time.perf_counter()
@@ -71,24 +87,37 @@ def main() -> None:
     batches = [1, 100] if args.quick else [1, 100, 1000]
     repeats = 1 if args.quick else 3
     if args.child:
-        print(json.dumps(child(args.child, batches, repeats)))
+        name, family = args.child.split(":")
+        print(json.dumps(child(name, family, batches, repeats)))
         return
     results = []
-    for name in FIGURES:
-        cmd = [sys.executable, __file__, "--child", name] + (["--quick"] if args.quick else [])
+    for name, family in CASES:
+        cmd = [sys.executable, __file__, "--child", f"{name}:{family}"]
+        cmd += ["--quick"] if args.quick else []
         done = subprocess.run(cmd, capture_output=True, text=True, check=True)
         results.append(json.loads(done.stdout.strip().splitlines()[-1]))
     print(
         f"Task.evaluate, {round(DURATION / DT)} steps (T = {DURATION} s, dt = {DT} s), "
         f"{results[0]['devices']} devices; evals/s (median of {repeats}), compile s"
     )
-    print(f"{'figure':10s}" + "".join(f"{'B = ' + str(b):>16s}" for b in batches))
+    print(f"{'figure':21s}" + "".join(f"{'B = ' + str(b):>16s}" for b in batches))
     for r in results:
         cells = "".join(
             f"{r['B'][str(b)]['evals_per_s']:9.0f} ({r['B'][str(b)]['compile_s']:4.1f} s)"
             for b in batches
         )
-        print(f"{r['figure']:10s}{cells}")
+        print(f"{r['figure'] + ' ' + r['family']:21s}{cells}")
+    star = {r["family"]: r for r in results if r["figure"] == "star_man"}
+    for b in batches:
+        ratio = (
+            star["sense_bsr"]["B"][str(b)]["evals_per_s"]
+            / star["time_bsr"]["B"][str(b)]["evals_per_s"]
+        )
+        compile_s = star["sense_bsr"]["B"][str(b)]["compile_s"]
+        print(
+            f"Star-Man sense_bsr / time_bsr at B = {b}: {ratio:.2f} (target >= 0.5); "
+            f"compile {compile_s:.1f} s (target <= 5 s)"
+        )
     rex = next(r for r in results if r["figure"] == "rex")
     worst = max(cell["compile_s"] for cell in rex["B"].values())
     print(f"Rex compile, slowest batch size: {worst:.1f} s (target <= 10 s)")

@@ -6,10 +6,10 @@ On one device (one core), for one chunk of the batch (`Task` runs 500 controller
 and call), it times
 
 - `evaluate`: the Task's own compiled evaluation (diffrax, observation, objective);
-- `scan`: the same semi-implicit Euler step in a plain `lax.scan`, no diffrax, no saving
-  (the active regime carried from step to step, as the solver does);
-- `scan, regime chosen in the step`: the regime chosen inside each step instead, which XLA
-  repeats in the loop over every spring-table entry (what the solver's carry avoids);
+- `scan`: the same step in a plain `lax.scan`, no diffrax, no saving: the control tick (the
+  regime chosen), materialised as the solver does, then semi-implicit Euler;
+- `scan, tick not materialised`: the tick's result left to XLA's fusion, which repeats the
+  regime choice in the loop over every spring-table entry (what the solver avoids);
 - `scan, one rest table`: without the regime switch (every step reads one table instead of
   choosing among the C regime tables);
 - `scan, no floor`: without contact and friction;
@@ -36,8 +36,10 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import jax.random as jr  # noqa: E402
 
+from jaxmotion._body.base import BodyState  # noqa: E402
 from jaxmotion._sim.compile import compiler_options  # noqa: E402
-from jaxmotion._task import _local_fitness  # noqa: E402
+from jaxmotion._sim.system import materialise  # noqa: E402
+from jaxmotion._task import _fitness  # noqa: E402
 
 
 def timed(fn, args, repeats):
@@ -76,8 +78,10 @@ def main() -> None:
     dynamics = body.dynamics()
     plans = jnp.moveaxis(jax.vmap(lambda c: c.prepare(body))(params), 0, -1)
     ctrl = jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -1), params)
-    y0 = jax.tree_util.tree_map(
-        lambda a: jnp.broadcast_to(a[..., None], (*a.shape, args.batch)), body.initial_state()
+    y0 = tuple(
+        jax.tree_util.tree_map(
+            lambda a: jnp.broadcast_to(a[..., None], (*a.shape, args.batch)), body.initial_state()
+        )
     )
     no_floor = jm.World(floor=False)
 
@@ -87,19 +91,22 @@ def main() -> None:
         @jit
         def run(y0, ctrl, plans):
             def step(carry, k):
-                (x, v), s = carry
-                if switch == "carried":
-                    table = ctrl.actuation_from(s, plans)
-                elif switch == "in step":
-                    table = ctrl.actuation(k * args.dt, plans)
-                else:
+                (x, v), control = carry
+                t = k * args.dt
+                if switch is None:
                     table = plans[0]
-                _, a = dynamics.rates((x, v), table, w)
+                else:
+                    control = ctrl.update(t, control, None, plans)
+                    if switch == "materialised":
+                        control = materialise(control)
+                    table = ctrl.actuation(t, control, plans)
+                _, a = dynamics.rates(BodyState(x, v), table, w)
                 v = v + args.dt * a
-                return ((x + args.dt * v, v), ctrl.schedule((k + 1) * args.dt)), None
+                return ((x + args.dt * v, v), control), None
 
             ks = jnp.arange(steps, dtype=jnp.float32)
-            return jax.lax.scan(step, (y0, ctrl.schedule(0.0)), ks)[0][0]
+            control = ctrl.init(None, plans)
+            return jax.lax.scan(step, (y0, control), ks)[0][0]
 
         return run
 
@@ -114,13 +121,13 @@ def main() -> None:
 
         return jax.lax.scan(step, y0, None, length=steps)[0]
 
-    evaluate = jit(lambda p: _local_fitness(task, p))
+    evaluate = jit(lambda p: _fitness(task, p))
     cases = {
         "evaluate": (evaluate, (params,)),
-        "scan": (scan("carried", world), (y0, ctrl, plans)),
-        "scan, regime chosen in the step": (scan("in step", world), (y0, ctrl, plans)),
+        "scan": (scan("materialised", world), (y0, ctrl, plans)),
+        "scan, tick not materialised": (scan("fused", world), (y0, ctrl, plans)),
         "scan, one rest table": (scan(None, world), (y0, ctrl, plans)),
-        "scan, no floor": (scan("carried", no_floor), (y0, ctrl, plans)),
+        "scan, no floor": (scan("materialised", no_floor), (y0, ctrl, plans)),
         "scan, springs only": (scan(None, no_floor), (y0, ctrl, plans)),
         "memory floor": (stream, (y0,)),
     }

@@ -212,13 +212,20 @@ def test_cli_help_documents_both_ways_to_run():
 
 
 def test_cli_runs_a_config_end_to_end_and_replays_it(tmp_path):
+    # The default experiment over 1 s, its GIF at 5 frames per second (the test's time goes
+    # to compiling and to drawing frames).
+    config = tmp_path / "short.toml"
+    text = (ROOT / "configs" / "default.toml").read_text()
+    config.write_text(
+        text.replace("duration = 5.0", "duration = 1.0").replace("fps = 25", "fps = 5")
+    )
     out = subprocess.run(
         [
             sys.executable,
             "-m",
             "jaxmotion",
             "run",
-            str(ROOT / "configs" / "default.toml"),
+            str(config),
             "--evaluations",
             "100",
             "--batch",

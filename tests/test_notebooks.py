@@ -9,7 +9,13 @@ import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
-SMALL = {"EVALUATIONS": "200", "BATCH": "50", "DURATION": "1.0", "MOTIONS": '("star_man",)'}
+SMALL = {
+    "EVALUATIONS": "200",
+    "BATCH": "50",
+    "DURATION": "1.0",
+    "MOTIONS": '("star_man",)',
+    "FPS": "4",  # rendering the animations' frames is a large share of a notebook's run
+}
 HERE = Path(__file__).resolve().parents[1] / "notebooks"
 
 

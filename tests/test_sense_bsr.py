@@ -68,7 +68,11 @@ def tick(c, t, state, s):
 def test_highest_positive_score_wins_and_none_positive_keeps_the_previous_rule():
     c = two_rules()
     state = c.init(jnp.asarray([0.5, 0.5]), plan_of(c))
-    assert int(state.discrete.active) == 0  # rule 0 over the first period
+    assert int(state.discrete.active) == 0
+    # Rule 0 over the first period: the first tick keeps it (Figure 2 acts, then senses),
+    # even where rule 1 scores higher.
+    state = tick(c, 0.0, state, [0.8, 0.2])
+    assert int(state.discrete.active) == 0
     # Inside both: the smaller rectangle scores higher.
     state = tick(c, 0.01, state, [0.8, 0.2])
     assert int(state.discrete.active) == 1
@@ -82,8 +86,8 @@ def test_highest_positive_score_wins_and_none_positive_keeps_the_previous_rule()
     assert int(state.discrete.active) == 0
     # Ties go to the lower index.
     twins = jm.SenseBSR([[0.5], [0.5]], [[1.0], [1.0]], [[0.0], [1.0]], [0.1, 0.1])
-    s = twins.init(jnp.asarray([0.5]), plan_of(twins))
-    s = tick(twins, 0.0, eqx.tree_at(lambda x: x.discrete.active, s, jnp.asarray(1)), [0.5])
+    s = tick(twins, 0.0, twins.init(jnp.asarray([0.5]), plan_of(twins)), [0.5])
+    s = tick(twins, 0.01, eqx.tree_at(lambda x: x.discrete.active, s, jnp.asarray(1)), [0.5])
     assert int(s.discrete.active) == 0
     # The actuation is the active rule's response.
     target, tau = c.actuation(0.0, tick(c, 0.05, state, [0.8, 0.2]), plan_of(c))
@@ -103,12 +107,15 @@ def test_the_low_pass_filter_follows_its_closed_form_step_response():
         want = b + (a - b) * np.exp(-t / T)
         np.testing.assert_allclose(np.asarray(state.discrete.filtered), want, atol=EXACT)
     # What the rules scored is what the controller perceives (recorded by searches).
+    t = jnp.asarray(ticks[-1])
     np.testing.assert_array_equal(
-        np.asarray(c.perceive(state, jnp.asarray(b), None)), np.asarray(state.discrete.filtered)
+        np.asarray(c.perceive(t, state, jnp.asarray(b), None)),
+        np.asarray(state.discrete.filtered),
     )
     # Off: the senses themselves.
     raw = two_rules()
     s = tick(raw, 0.01, raw.init(jnp.asarray(a), plan_of(raw)), b)
+    assert not bool(s.discrete.first)
     np.testing.assert_array_equal(np.asarray(s.discrete.filtered), b.astype(np.float32))
 
 
@@ -292,7 +299,7 @@ def test_smoothing_width_zero_is_the_hard_switch_and_small_widths_approach_it():
     hard = c.init(jnp.asarray(senses[0]), plan_of(c))
     soft = c.smoothed(1e-3)
     soft_state = soft.init(jnp.asarray(senses[0]), plan_of(soft))
-    for k, s in enumerate(senses[1:]):
+    for k, s in enumerate(senses):
         hard = tick(c, 0.01 * k, hard, s)
         soft_state = tick(soft, 0.01 * k, soft_state, s)
         weights = np.asarray(soft_state.discrete.active)

@@ -74,8 +74,9 @@ def _figure_task(figure):
     ("make", "widths"),
     [
         (lambda: cube_task(body=jm.lattices.pyramid()), (40, 64)),
-        (lambda: cube_task(body=jm.lattices.chair()), (40,)),
-        (lambda: _figure_task(jm.figures.rex()), (24, 40)),
+        # The chair runs the lattices' code as the pyramid does (CI's time): `-m slow`.
+        pytest.param(lambda: cube_task(body=jm.lattices.chair()), (40,), marks=pytest.mark.slow),
+        (lambda: _figure_task(jm.figures.rex()), (24,)),
     ],
     ids=["pyramid", "chair", "rex"],
 )

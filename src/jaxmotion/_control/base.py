@@ -32,21 +32,21 @@ class AbstractController(eqx.Module):
     hybrid system run alongside the body (the way robotics simulators run a policy).
 
     A simulation first calls `prepare(body)` once (outside the time loop) for whatever can
-    be computed ahead (the plan), and `init(senses, plan)` for the controller's state over
-    the first control period, from t = 0. Time then runs in control periods of `control_dt`
-    (by default one step of the search's solver); in each period:
+    be computed ahead (the plan), and `init(senses, plan)` for the controller's state at the
+    start. Time then runs in control periods of `control_dt` (by default one step of the
+    search's solver), each starting with a *control tick* at its time `t_k`:
 
-    1. the body is driven by `actuation(t, state, plan)`, and the state's continuous part
-        (if any) moves with `rates(t, state, plan)`;
-    2. at the period's end `t_k` (a *control tick*), `update(t_k, state, senses, plan)`
-        returns the state for the next period from the time, the state and the body's senses
-        there (normalised to [0, 1]; `None` unless the class sets `reads_senses`).
+    1. `update(t_k, state, senses, plan)` returns the state for the period from the time,
+        the state and the body's senses there (normalised to [0, 1]; `None` unless the class
+        sets `reads_senses`);
+    2. over the period the body is driven by `actuation(t, state, plan)`, and the state's
+        continuous part (if any) moves with `rates(t, state, plan)`.
 
-    This is the second paper's Figure 2: act, simulate the period, sense, possibly change the
-    active rule. The discrete part of the state is held between ticks (zero-order hold), so
-    `actuation` may switch discontinuously only through it: the adaptive solvers integrate
-    from tick to tick and never see a switch inside a step. Its dependence on `t` and on the
-    continuous state must be smooth.
+    The discrete part of the state is held between ticks (zero-order hold), so `actuation`
+    may switch discontinuously only through it: the adaptive solvers integrate from tick to
+    tick and never see a switch inside a step. Its dependence on `t` and on the continuous
+    state must be smooth. (The second paper's Figure 2 acts before it first senses: a BSR
+    controller keeps rule 0 through its first tick.)
 
     An open-loop (time-based) controller ignores the senses: what it carries from tick to
     tick is its choice (the active regime or rule), made once per controller and tick rather
@@ -68,7 +68,7 @@ class AbstractController(eqx.Module):
         Raises `TypeError` or `ValueError` if the controller does not fit `body`."""
 
     def init(self, senses: Float[Array, " num_senses"] | None, plan: Any) -> ControllerState:
-        """The state over the first control period, from t = 0, given the senses of the
+        """The state at the start (t = 0, before the first tick), given the senses of the
         starting state (`None` unless `reads_senses`). Default: no state."""
         del senses, plan
         return ControllerState()
@@ -98,11 +98,11 @@ class AbstractController(eqx.Module):
         del t, state, plan
         return None
 
-    def perceive(self, state: ControllerState, senses: Any, plan: Any) -> Any:
-        """The sense vector the controller's decisions read at a tick with these `senses`
-        (default: the senses themselves; a low-pass-filtered controller returns its filtered
-        senses). Searches record it along a motion (the relevance heuristic)."""
-        del state, plan
+    def perceive(self, t: Float[Array, ""], state: ControllerState, senses: Any, plan: Any) -> Any:
+        """The sense vector the controller's decisions read at a tick at `t` with these
+        `senses` (default: the senses themselves; a low-pass-filtered controller returns its
+        filtered senses). Searches record it along a motion (the relevance heuristic)."""
+        del t, state, plan
         return senses
 
     def smoothed(self, width: float) -> "AbstractController":

@@ -123,7 +123,7 @@ class Regimes(AbstractController):
         )
 
     def init(self, senses, plan) -> ControllerState:
-        """The choice for the first period: the regime of t = 0."""
+        """The regime of t = 0 (the first tick chooses it again)."""
         return self.update(jnp.zeros((), dtype=float), None, senses, plan)
 
     def update(self, t, state, senses, plan) -> ControllerState:

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from .._body.figure import Figure
 from .base import AbstractController, AbstractControllerSpace, ControllerState
@@ -30,11 +30,14 @@ class BSRState(eqx.Module):
     - `filtered`: the low-pass-filtered senses the rules score (the senses themselves when
         the filter is off).
     - `t`: the time of the last tick (the filter's step is the time since).
+    - `first`: true until the first tick (which keeps rule 0, as the paper's Figure 2 acts
+        before it first senses).
     """
 
     active: Int[Array, ""] | Float[Array, " R"]
     filtered: Float[Array, " num_senses"]
     t: Float[Array, ""]
+    first: Bool[Array, ""]
 
 
 class SenseBSR(AbstractController):
@@ -52,8 +55,9 @@ class SenseBSR(AbstractController):
     higher for smaller, more specific rectangles. The rule with the highest positive score
     becomes active (the lowest index on ties); if no rule scores positive, the previous rule
     stays active. Rule 0 is active over the first control period (the paper's Figure 2 sets
-    `i_active = 1` before its loop). Every free joint angle then moves toward the active
-    rule's `targets` with its time constant `taus` (`tau^2 th'' + 2 tau th' + th = th0`).
+    `i_active = 1` and acts before it first senses). Every free joint angle then moves
+    toward the active rule's `targets` with its time constant `taus`
+    (`tau^2 th'' + 2 tau th' + th = th0`).
 
     The senses may first pass a first-order low-pass filter of time constant `filter_time`
     (the paper's section 4.2, "to remove noise and high-frequency variation"): at a tick
@@ -156,7 +160,8 @@ class SenseBSR(AbstractController):
             active = jnp.zeros((self.num_rules, *shape), dtype=float).at[0].set(1.0)
         else:
             active = jnp.zeros(shape, dtype=jnp.int32)
-        return ControllerState(BSRState(active, senses, jnp.zeros(shape, dtype=float)))
+        zero = jnp.zeros(shape, dtype=float)
+        return ControllerState(BSRState(active, senses, zero, jnp.ones(shape, dtype=bool)))
 
     def _filtered(self, state: BSRState, t, senses):
         if self.filter_time == 0:
@@ -166,13 +171,16 @@ class SenseBSR(AbstractController):
 
     def update(self, t, state: ControllerState, senses, plan) -> ControllerState:
         """The tick: filter the senses, score the rules, keep the previous rule if none
-        scores positive."""
+        scores positive (or at the first tick)."""
         bsr = state.discrete
         filtered = self._filtered(bsr, t, senses)
         scores = self.scores(filtered, plan)
         time = jnp.broadcast_to(t, jnp.shape(bsr.t)).astype(bsr.t.dtype)
+        done = jnp.zeros_like(bsr.first)
         if self.blend > 0:
-            return ControllerState(BSRState(self._soft(scores, bsr.active), filtered, time))
+            soft = self._soft(scores, bsr.active)
+            active = jnp.where(bsr.first, bsr.active, soft)
+            return ControllerState(BSRState(active, filtered, time, done))
         # The highest positive score by a chain of compares (elementwise over a batch-last
         # stack); ties keep the lower index; no positive score keeps the previous rule.
         best = scores[0]
@@ -181,8 +189,8 @@ class SenseBSR(AbstractController):
             higher = scores[r] > best
             best = jnp.where(higher, scores[r], best)
             index = jnp.where(higher, r, index)
-        active = jnp.where(best > 0, index, bsr.active)
-        return ControllerState(BSRState(active, filtered, time))
+        active = jnp.where((best > 0) & ~bsr.first, index, bsr.active)
+        return ControllerState(BSRState(active, filtered, time, done))
 
     def _soft(self, scores, previous):
         # Softmax of the scores at temperature `blend`, blended with the previous weights by
@@ -212,11 +220,11 @@ class SenseBSR(AbstractController):
             tau = jnp.where(on, self.taus[r], tau)
         return target, tau
 
-    def perceive(self, state: ControllerState, senses, plan):
-        """The senses the rules scored at the last tick: the filtered ones, or the senses
-        themselves without a filter."""
+    def perceive(self, t, state: ControllerState, senses, plan):
+        """The senses the rules score at a tick at `t`: filtered, or the senses themselves
+        without a filter."""
         del plan
-        return senses if self.filter_time == 0 else state.discrete.filtered
+        return self._filtered(state.discrete, t, senses)
 
     def active_rules(self, perceived: Float[Array, "num_samples num_senses"]):
         """The rule that the hard choice makes at each of a sequence of perceived senses
@@ -225,7 +233,7 @@ class SenseBSR(AbstractController):
 
         def step(active, s):
             scores = self.scores(s, plan)
-            best = jnp.argmax(scores)
+            best = jnp.argmax(scores).astype(active.dtype)
             active = jnp.where(scores[best] > 0, best, active)
             return active, active
 

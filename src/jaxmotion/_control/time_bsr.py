@@ -75,7 +75,7 @@ class TimeBSR(AbstractController):
         return index
 
     def init(self, senses, plan) -> ControllerState:
-        """The choice for the first period: the rule of t = 0."""
+        """The rule of t = 0 (the first tick chooses it again)."""
         return self.update(jnp.zeros((), dtype=float), None, senses, plan)
 
     def update(self, t, state, senses, plan) -> ControllerState:

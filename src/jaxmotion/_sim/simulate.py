@@ -179,9 +179,12 @@ def _integrate(
     """
     rtol, atol = _tolerances(rtol, atol)
     dtype = jnp.result_type(float)
-    n0 = jnp.round(jnp.asarray(t0, dtype=dtype) / grid.control_dt)
-    steps = n0 + grid.save_every * jnp.arange(grid.num_saves + 1, dtype=dtype)
-    ticks = steps * jnp.asarray(grid.control_dt, dtype=dtype)  # one solver step a sample
+    # Whole tick counts in integers, each time a single rounding `k * control_dt` (XLA would
+    # reassociate float products of constants, `(k * save_every) * dt` -> `k * (save_every
+    # dt)`, and label the same instant differently for different save intervals).
+    n0 = jnp.round(jnp.asarray(t0, dtype=dtype) / grid.control_dt).astype(jnp.int32)
+    steps = n0 + grid.save_every * jnp.arange(grid.num_saves + 1, dtype=jnp.int32)
+    ticks = steps.astype(dtype) * jnp.asarray(grid.control_dt, dtype=dtype)  # a sample each
     saveat = dfx.SaveAt(
         subs=[dfx.SubSaveAt(t0=True, steps=True, fn=system.sample), dfx.SubSaveAt(t1=True)]
     )
@@ -247,6 +250,7 @@ def simulate(
     atol: float | None = None,
     max_steps: int = 100_000,
     initial_state=None,
+    senses: bool = False,
 ) -> Trajectory:
     """Simulate `body` driven by `controller` in `world` for `duration` seconds.
 
@@ -281,6 +285,7 @@ def simulate(
         (`trajectory.final`) to continue a simulation of the same controller from its end:
         on the fixed-step path `[0, T1]` then `[T1, T]` computes bitwise what `[0, T]`
         does.
+    - `senses`: also save the senses the controller perceives (`Trajectory.senses`).
 
     **Returns:** a `Trajectory` sampled at the save times, with the final state; its
     `finite` is `False` for a run that blew up (it never raises for that, so it is safe
@@ -292,7 +297,9 @@ def simulate(
     grid = time_grid(duration, dt, save_dt, control_dt)
     _check_solver(solver)
     plan = _prepare(body, controller)
-    system = ClosedLoop(body.dynamics(), controller, plan, world, grid.control_dt)
+    system = ClosedLoop(
+        body.dynamics(), controller, plan, world, grid.control_dt, record_senses=senses
+    )
     t0, y0 = _start(system, body, initial_state)
     system = system.with_start(y0[1])
     ts, samples, (body_state, control), ok = _integrate(

@@ -1,10 +1,9 @@
 """The solvers of the closed loop: diffrax solvers whose step is a whole number of control
 periods (one save interval).
 
-Each control period `[t_k, t_{k+1}]` integrates the continuous state with the controller's
-discrete state held, then ends with the control tick at `t_{k+1}` (the controller's state
-updated from the body's senses there, for the next period), as the second paper's Figure 2
-runs a BSR controller. The solvers differ in that integration:
+Each control period `[t_k, t_{k+1}]` starts with the control tick at `t_k` (the controller's
+state updated from the time and the body's senses there), then integrates the continuous
+state with the discrete state held. The solvers differ in that integration:
 
 - `FixedStep`: semi-implicit (symplectic) Euler in `substeps` equal physics steps of `dt`: the
   search's fast path.
@@ -29,7 +28,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .system import ClosedLoop, axpy, join, split
+from .system import ClosedLoop, axpy, join, materialise, split
 
 
 class ClosedLoopTerm(dfx.AbstractTerm):
@@ -53,9 +52,18 @@ class ClosedLoopTerm(dfx.AbstractTerm):
 
 
 def _tick(system: ClosedLoop, t, y):
-    """The control tick at `t`, ending a period: the controller's state for the next."""
+    """The control tick at `t`, starting a period: the state split for integration, the
+    discrete state materialised.
+
+    The senses are read from the state the period starts from, which the period's first
+    force evaluation reads too, so XLA computes what they share once. The discrete state is
+    then materialised (`materialise`): left to itself XLA fused the tick's arithmetic (a
+    time-based controller's choice of regime) into the loops that use its result and
+    repeated it for every entry of the actuation it selects (a quarter of a lattice's step).
+    """
     body, control = y
-    return body, system.tick(t, body, control)
+    positions, velocities, discrete = split((body, system.tick(t, body, control)))
+    return positions, velocities, materialise(discrete)
 
 
 def _periods(period, ticks: int, control_dt: float, t0, y0, carry):
@@ -78,7 +86,8 @@ def _periods(period, ticks: int, control_dt: float, t0, y0, carry):
 class FixedStep(dfx.AbstractSolver):
     """`ticks` control periods, each a tick then `substeps` semi-implicit Euler steps of
     `dt`: `v1 = v0 + dt a(t, x0, v0)`, then `x1 = x0 + dt xdot(t, x0, v1)`, for the body and
-    the controller's continuous state together, with the discrete state chosen at the tick.
+    the controller's continuous state together, with the discrete state chosen at the
+    tick.
 
     The physics step `dt` is a constant (the diffrax times only tell the controller the time),
     so the arithmetic of a step never depends on where it falls.
@@ -102,7 +111,8 @@ class FixedStep(dfx.AbstractSolver):
         system = args
 
         def period(t_tick, t_next, y, carry):
-            positions, velocities, discrete = split(y)
+            del t_next
+            positions, velocities, discrete = _tick(system, t_tick, y)
 
             def euler(i, xv):
                 x, v = xv
@@ -117,7 +127,7 @@ class FixedStep(dfx.AbstractSolver):
                 xv = euler(0, xv)
             else:
                 xv = jax.lax.fori_loop(0, self.substeps, euler, xv)
-            return _tick(system, t_next, join(*xv, discrete)), carry
+            return join(*xv, discrete), carry
 
         y1, _ = _periods(period, self.ticks, self.dt * self.substeps, t0, y0, None)
         return y1, None, dict(y0=y0, y1=y1), None, dfx.RESULTS.successful
@@ -160,7 +170,7 @@ class Adaptive(dfx.AbstractSolver):
 
         def period(t_tick, t_next, y, carry):
             dt_guess, used, result = carry
-            positions, velocities, discrete = split(y)
+            positions, velocities, discrete = _tick(system, t_tick, y)
 
             def vector_field(t, xv, args):
                 del args
@@ -185,8 +195,7 @@ class Adaptive(dfx.AbstractSolver):
             dt_guess = (t_next - t_tick) / accepted.astype(dt_guess.dtype)
             used = used + sol.stats["num_steps"]
             result = dfx.RESULTS.where(result == dfx.RESULTS.successful, sol.result, result)
-            y1 = _tick(system, t_next, join(x1, v1, discrete))
-            return y1, (dt_guess, used, result)
+            return join(x1, v1, discrete), (dt_guess, used, result)
 
         dt_guess, used = solver_state
         carry = (dt_guess, used, dfx.RESULTS.successful)

@@ -92,7 +92,7 @@ class ClosedLoop(eqx.Module):
         return self._body(lambda b: self.dynamics.senses(b, self.world, self.control_dt))(body)
 
     def start(self, body: BodyState) -> ControllerState:
-        """The controller's state over the first period (`init`, given the senses of the
+        """The controller's state before its first tick (`init`, given the senses of the
         starting state)."""
         if self.controller is None:
             return ControllerState()
@@ -100,8 +100,8 @@ class ClosedLoop(eqx.Module):
         return self._control("init", (-1, -1))(self.controller, senses, self.plan)
 
     def tick(self, t, body: BodyState, control: ControllerState) -> ControllerState:
-        """The control tick at `t`: the controller's state for the next period, updated
-        from the body's senses."""
+        """The control tick at `t`: the controller's state for the period from `t`, updated
+        from the time and the body's senses."""
         if self.controller is None:
             return control
         senses = self.senses(body) if self.reads_senses else None
@@ -132,16 +132,16 @@ class ClosedLoop(eqx.Module):
 
     def sample(self, t, y, args=None) -> tuple[Observation, Any]:
         """What is saved at a sample: the observables and (if recorded) the senses the
-        controller would perceive at a tick here."""
-        del t, args
+        controller perceives at the tick here."""
+        del args
         body, control = y
         obs = self._body(lambda p: self.dynamics.observe(p, self.world))(body.positions)
         if not self.record_senses:
             return obs, None
         senses = self.senses(body)
         if self.controller is not None:
-            perceive = self._control("perceive", (-1, -1, -1))
-            senses = perceive(self.controller, self.restore(control), senses, self.plan)
+            perceive = self._control("perceive", (None, -1, -1, -1))
+            senses = perceive(self.controller, t, self.restore(control), senses, self.plan)
         return obs, senses
 
 
@@ -172,6 +172,25 @@ def join(positions, velocities, discrete):
     body = BodyState(positions[0], velocities[0])
     continuous = None if positions[1] is None else (positions[1], velocities[1])
     return body, ControllerState(discrete, continuous)
+
+
+def materialise(tree):
+    """`tree`, its floating leaves computed here rather than fused into their consumers.
+
+    XLA's CPU compiler never fuses through a matrix product, and removes
+    `lax.optimization_barrier`; each leaf is therefore passed through a product with a 2x2
+    identity (exact: `1 * x` plus an exact zero; with a 1x1 identity XLA turns the product
+    into a fusible multiply)."""
+
+    def one(x):
+        if not jnp.issubdtype(jnp.result_type(x), jnp.floating):
+            return x
+        flat = jnp.stack([x.reshape(-1), jnp.zeros_like(x.reshape(-1))])
+        eye = jnp.eye(2, dtype=flat.dtype)
+        kept = jnp.dot(eye, flat, precision=jax.lax.Precision.HIGHEST)
+        return kept[0].reshape(x.shape)
+
+    return jax.tree_util.tree_map(one, tree)
 
 
 def axpy(h, dx, x):
