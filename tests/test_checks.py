@@ -173,3 +173,25 @@ def test_bound_needs_airborne_phases_and_two_body_lengths():
     walker = trajectory(5.0, lambda t: [0.6 * t, 0, 0.5], contact=lambda t: np.ones(8, bool))
     assert not jm.checks.bound(walker, body_length=1.0)
     assert not jm.checks.bound(bounder, body_length=2.0)  # 3 m is 1.5 of its lengths
+
+
+def test_jump_needs_every_point_clear_of_the_floor_at_once_and_an_upright_landing():
+    # The unit cube's bottom face rests on the floor at a CoM height of 0.5: a jump of
+    # height h lifts every point by h at the top and lands at t = 1.
+    def jumper(h, tilt=0.0, duration=1.0):
+        return trajectory(
+            duration,
+            lambda t: [0.2 * t, 0, 0.5 + h * max(0.0, math.sin(math.pi * t))],
+            angles=lambda t: tilt * t,
+        )
+
+    result = jm.checks.jump(jumper(0.3), body_length=1.0)
+    assert result.passed, result.summary()
+    assert result.figures["clearance_m"] == pytest.approx(0.3, rel=1e-6)
+    assert not jm.checks.jump(jumper(0.2), body_length=1.0)  # 0.2 < 0.25 body lengths
+    assert jm.checks.jump(jumper(0.2), body_length=0.5)  # 0.4 of its lengths
+    # Lands 40 degrees off upright (the cube turns as it flies).
+    crooked = jm.checks.jump(jumper(0.3, tilt=math.radians(40)), body_length=1.0)
+    assert not crooked and crooked.figures["final_tilt_degrees"] == pytest.approx(40, abs=0.1)
+    still_up = jm.checks.jump(jumper(0.3, duration=0.5), body_length=1.0)  # ends at the top
+    assert not still_up and still_up.figures["on_floor_at_end"] == 0.0

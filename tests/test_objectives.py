@@ -82,6 +82,24 @@ def test_max_height():
     assert value("max_height", tr) == pytest.approx(2.0)
 
 
+def test_clearance_is_the_highest_height_every_point_clears_at_once():
+    # The unit cube rests with its bottom face on the floor: clearance 0 at rest, h at the top
+    # of a jump of height h; a cube stood on one edge (tilted 45 degrees) clears nothing
+    # however high its CoM, while a tall thin stick lifted by 0.1 clears 0.1.
+    z = 0.5 + 0.7 * np.sin(np.linspace(0, np.pi, 21))
+    tr = make(np.stack([np.zeros(21), np.zeros(21), z], axis=1))
+    assert value("clearance", tr) == pytest.approx(0.7, rel=1e-6)
+    assert value("clearance", make(np.full((5, 3), 0.5))) == pytest.approx(0.0, abs=1e-9)
+    edge = make(
+        np.full((5, 3), [0.0, 0.0, np.sqrt(0.5)]),
+        frames=np.broadcast_to(rot_y(np.pi / 4), (5, 3, 3)),
+    )
+    assert value("clearance", edge) == pytest.approx(0.0, abs=1e-6)
+    stick = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2.0]])
+    lifted = make(line([0, 0, 1.0], [0, 0, 1.1]), shape=stick)
+    assert value("clearance", lifted) == pytest.approx(0.1, rel=1e-5)
+
+
 def test_contact_terms():
     # 8 points; contact pattern over 6 samples (the first, t = 0, is ignored).
     pattern = np.zeros((6, 8), bool)
