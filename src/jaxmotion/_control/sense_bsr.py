@@ -14,6 +14,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from .._body.figure import Figure
 from .base import AbstractController, AbstractControllerSpace, ControllerState
+from .time_bsr import joint_bounds, rule_response
 
 SIDE_MIN, SIDE_MAX = 0.4, 4.0
 """Table 2's range of a hyper-rectangle's side length `2 / lambda` (log-uniform)."""
@@ -394,13 +395,10 @@ class SenseBSRSpace(AbstractControllerSpace[SenseBSR]):
         return "sense_bsr"
 
     def _lo_hi(self):
-        r = np.array(self.ranges, dtype=float).reshape(-1, 2)
-        return jnp.asarray(r[:, 0]), jnp.asarray(r[:, 1])
+        return joint_bounds(self.ranges)
 
     def _response(self, u_targets, u_tau):
-        lo, hi = self._lo_hi()
-        log_lo, log_hi = math.log(self.tau_min), math.log(self.tau_max)
-        return lo + (hi - lo) * u_targets, jnp.exp(log_lo + (log_hi - log_lo) * u_tau)
+        return rule_response(self.ranges, self.tau_min, self.tau_max, u_targets, u_tau)
 
     @staticmethod
     def _sides(u):

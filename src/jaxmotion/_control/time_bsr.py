@@ -122,6 +122,20 @@ def _check(splits, targets, taus, t_per) -> None:
         raise ValueError("TimeBSR.targets must be finite")
 
 
+def joint_bounds(ranges):
+    """The joint ranges `((lo, hi), ...)` as two arrays `(lo, hi)`."""
+    r = np.array(ranges, dtype=float).reshape(-1, 2)
+    return jnp.asarray(r[:, 0]), jnp.asarray(r[:, 1])
+
+
+def rule_response(ranges, tau_min, tau_max, u_targets, u_tau):
+    """A BSR rule's response from uniform draws (the second paper's Table 2): target angles
+    uniform in their ranges, `tau` log-uniform in `[tau_min, tau_max]`."""
+    lo, hi = joint_bounds(ranges)
+    log_lo, log_hi = math.log(tau_min), math.log(tau_max)
+    return lo + (hi - lo) * u_targets, jnp.exp(log_lo + (log_hi - log_lo) * u_tau)
+
+
 class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
     """The family of `TimeBSR` controllers for one figure, with the second paper's sampling
     (Table 2) and mutation (section 2.1.3).
@@ -198,13 +212,10 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
         return "time_bsr"
 
     def _lo_hi(self):
-        r = np.array(self.ranges, dtype=float).reshape(-1, 2)
-        return jnp.asarray(r[:, 0]), jnp.asarray(r[:, 1])
+        return joint_bounds(self.ranges)
 
     def _rule(self, u_targets, u_tau):
-        lo, hi = self._lo_hi()
-        log_lo, log_hi = math.log(self.tau_min), math.log(self.tau_max)
-        return lo + (hi - lo) * u_targets, jnp.exp(log_lo + (log_hi - log_lo) * u_tau)
+        return rule_response(self.ranges, self.tau_min, self.tau_max, u_targets, u_tau)
 
     def sample(self, *, key: PRNGKeyArray) -> TimeBSR:
         r, f = self.num_rules, self.num_free
