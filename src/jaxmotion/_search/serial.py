@@ -13,6 +13,8 @@ import numpy as np
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from .._control.base import AbstractController
+from .._sim.compile import simulation_jit
+from .._sim.execution import batch_size, padded, share
 from .._task import Task
 from .hill_climb import SearchResult, _check_positive_int
 from .history import History
@@ -197,14 +199,31 @@ def _per_seed(tree, seeds: int):
 # so searches that differ only in `reseed_every` share their compilations.
 
 
-@eqx.filter_jit
-def _sample(task: Task, key, seeds, climbers: int):
-    def one(s):
-        sample_key, run_key = jr.split(jr.fold_in(key, s))
-        return task.sample(climbers, key=sample_key), run_key
+def _lanes(fn: Callable, *trees):
+    """`vmap(fn)` over the leading axis of `trees` (one entry per climber of every seed), the
+    axis padded to whole lane groups as `task.evaluate` pads its batch (see
+    `jaxmotion._sim.execution.share`) and compiled with the simulations' options. XLA's CPU
+    loops run whole groups of 8 lanes through vector code and the rest through scalar code
+    that rounds `exp` and `log` differently in the last bit; without the padding, climber 8
+    of a seed run alone (10 climbers) drew another mutation than the same climber batched
+    with other seeds, and a chaotic motion made that another search."""
+    n = batch_size(trees)
+    out = jax.vmap(fn)(*padded(trees, share(n)))
+    return jax.tree_util.tree_map(lambda a: a[:n], out)
 
-    population, keys = jax.vmap(one)(seeds)
-    return _flat(population), keys
+
+def _climber_keys(keys, climbers: int, fold):
+    """Every climber's key, seed-major along one axis: seed `s` splits `fold(keys[s])`."""
+    return _flat(jax.vmap(lambda k: jr.split(fold(k), climbers))(keys))
+
+
+@simulation_jit
+def _sample(task: Task, key, seeds, climbers: int):
+    # Seed s's climbers are `task.sample(climbers, key=sample_key)` of seed s.
+    pairs = jax.vmap(lambda s: jr.split(jr.fold_in(key, s)))(seeds)
+    sample_keys, run_keys = pairs[:, 0], pairs[:, 1]
+    keys = _climber_keys(sample_keys, climbers, lambda k: k)
+    return _lanes(lambda k: task.space.sample(key=k), keys), run_keys
 
 
 @eqx.filter_jit
@@ -222,19 +241,20 @@ def _start(population, fitness, keys, motion) -> SerialSearchState:
     )
 
 
-@eqx.filter_jit
+@simulation_jit
 def _enriched(task: Task, state: SerialSearchState, round_: int):
     """Every climber with one rule reinitialised by the relevance heuristic. Round `k` of
     seed `s` draws from `fold_in(fold_in(key[s], 0), k)` (generation `g` draws from
     `fold_in(key[s], g + 1)`)."""
-
-    def one(population, key, motion):
-        keys = jr.split(jr.fold_in(jr.fold_in(key, 0), round_), state.fitness.shape[1])
-        return jax.vmap(lambda p, k, m: task.space.reinitialise(p, key=k, motion=m))(
-            population, keys, motion
-        )
-
-    return _flat(jax.vmap(one)(state.population, state.key, state.motion))
+    keys = _climber_keys(
+        state.key, state.fitness.shape[1], lambda k: jr.fold_in(jr.fold_in(k, 0), round_)
+    )
+    return _lanes(
+        lambda p, k, m: task.space.reinitialise(p, key=k, motion=m),
+        _flat(state.population),
+        keys,
+        _flat(state.motion),
+    )
 
 
 @eqx.filter_jit
@@ -252,19 +272,19 @@ def _replace(state: SerialSearchState, candidates, fitness, motion) -> SerialSea
     )
 
 
-@eqx.filter_jit
+@simulation_jit
 def _ask(task: Task, state: SerialSearchState):
-    def one(population, key, motion):
-        keys = jr.split(jr.fold_in(key, state.generation + 1), state.fitness.shape[1])
-        if motion is None:
-            return jax.vmap(lambda p, k: task.space.perturb(p, key=k))(population, keys)
-        return jax.vmap(lambda p, k, m: task.space.perturb(p, key=k, motion=m))(
-            population, keys, motion
-        )
-
+    keys = _climber_keys(
+        state.key, state.fitness.shape[1], lambda k: jr.fold_in(k, state.generation + 1)
+    )
     if state.motion is None:
-        return _flat(jax.vmap(lambda p, k: one(p, k, None))(state.population, state.key))
-    return _flat(jax.vmap(one)(state.population, state.key, state.motion))
+        return _lanes(lambda p, k: task.space.perturb(p, key=k), _flat(state.population), keys)
+    return _lanes(
+        lambda p, k, m: task.space.perturb(p, key=k, motion=m),
+        _flat(state.population),
+        keys,
+        _flat(state.motion),
+    )
 
 
 def _select(mask, new, old):
