@@ -111,9 +111,19 @@ def test_contact_terms():
     tr = make(np.full((6, 3), 0.5), contact=pattern, duration=1.0)
     assert value("hops", tr) == 2
     assert value("min_contacts", tr) == 0
+    assert value("grounded", tr) == 0  # airborne at samples 2 and 4
     assert value("contact_time", tr) == pytest.approx(3 * 0.2)
     assert value("on_ground_at_end", tr) == 1
     assert value("on_ground_at_end", tr, min_points=4) == 0
+    # Some point down at every sample, a different one each time: grounded, and the fewest
+    # points down at once is 1 (the start, t = 0, is not counted: nothing touches yet).
+    walking = np.zeros((6, 8), bool)
+    walking[np.arange(1, 6), np.arange(1, 6)] = True
+    walking[3, 0] = True
+    tr = make(np.full((6, 3), 0.5), contact=walking, duration=1.0)
+    assert value("grounded", tr) == 1
+    assert value("min_contacts", tr) == 1
+    assert value("contact_time", tr) == pytest.approx(1.0)
 
 
 def spin(axis_rot, total, t=41):

@@ -86,6 +86,15 @@ def min_contacts(trajectory: Trajectory) -> Float[Array, ""]:
     return jnp.min(jnp.sum(trajectory.contact[1:], axis=-1)).astype(float)
 
 
+@register_term("grounded")
+def grounded(trajectory: Trajectory) -> Float[Array, ""]:
+    """1 if some point touches the floor at every saved time after the start, else 0 (the
+    shuffle check's criterion: reward it for a gait that never leaves the floor, whichever
+    point keeps it there; `min_contacts` also rewards keeping more points down)."""
+    touching = jnp.any(trajectory.contact[1:], axis=-1)
+    return jnp.all(touching).astype(float)
+
+
 def _interval_lengths(trajectory: Trajectory):
     return jnp.diff(trajectory.ts)
 
