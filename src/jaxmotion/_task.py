@@ -95,8 +95,10 @@ class Task(eqx.Module):
         """Fitness (maximised) of a batch of controllers (leading batch axis on every array).
 
         One compiled call simulates the whole batch, sharded over every device JAX sees; it is
-        compiled once per body structure, controller family and batch size, and reused by
-        every later call with the same shapes (`chunk`: evaluate in calls of this many
+        compiled once per body structure, controller family and padded batch size (the
+        batch is padded to whole groups of 8 per device, at least 16: batches of 1 to 16
+        share one compilation), and reused by every later call with the same shapes
+        (`chunk`: evaluate in calls of this many
         controllers, the last padded, to reuse the compilation of that size). A run that
         blows up gets fitness `-inf` (the worst) rather than raising or returning NaN;
         count them with `jnp.isneginf(fitness)`.

@@ -85,16 +85,30 @@ def padded(params, size: int):
     )
 
 
+def _split(batch: int, shard: bool) -> bool:
+    """Whether a batch is split over the devices (small batches, where splitting buys
+    little, stay on one device)."""
+    devices = len(jax.devices())
+    return shard and devices > 1 and batch >= MIN_SHARE * devices
+
+
+def laid_out(batch: int, shard: bool) -> int:
+    """The size a batch of `batch` controllers is padded to: each device's share a whole
+    number of lane groups (`share`)."""
+    if not _split(batch, shard):
+        return share(batch)
+    devices = len(jax.devices())
+    return share(-(-batch // devices)) * devices
+
+
 def _sharded(fn: Callable, shard: bool, args, params):
-    """`fn(args, params) -> outputs with a leading batch axis`, with the batch padded to
-    whole lane groups and, when `shard` and big enough, split over every device (small
-    batches, where splitting buys little, stay on one device)."""
-    devices = jax.devices()
+    """`fn(args, params) -> outputs with a leading batch axis`, with the batch padded as
+    `laid_out` says and, when `shard` and big enough, split over every device."""
     batch = batch_size(params)
-    if not shard or len(devices) == 1 or batch < MIN_SHARE * len(devices):
+    if not _split(batch, shard):
         out = fn(args, padded(params, share(batch)))
         return jax.tree_util.tree_map(lambda a: a[:batch], out)
-    params = padded(params, share(-(-batch // len(devices))) * len(devices))
+    params = padded(params, laid_out(batch, shard))
     dynamic, static = eqx.partition(args, eqx.is_array)
     local = lambda d, p: fn(eqx.combine(d, static), p)
     out = jax.shard_map(
@@ -127,7 +141,11 @@ def run(fn: Callable, args, params, *, chunk: int | None = None, shard: bool = T
     size = CHUNK * (len(jax.devices()) if shard else 1) if chunk is None else chunk
     compiled = _compiled(fn, shard)
     if batch <= size and chunk is None:
-        return compiled(args, params)
+        # Padded before the call, so every batch size with the same layout (1 to 16
+        # controllers, say) shares one compilation.
+        total = laid_out(batch, shard)
+        out = compiled(args, replicated(padded(params, total)))
+        return jax.tree_util.tree_map(lambda a: a[:batch], out)
     calls = -(-batch // size)
     full = padded(params, calls * size)
     parts = [
