@@ -155,14 +155,12 @@ def _tolerances(rtol, atol):
     return rtol, atol
 
 
-class _Ticks(dfx.AbstractStepSizeController):
+class _Ticks(dfx.StepTo):
     """`diffrax.StepTo` without its run-time checks: steps to the given times, which the
     caller builds increasing from `t0` to `t1` (whole tick counts). StepTo checks them in the
     compiled program with host callbacks (`equinox.error_if`), and JAX does not write a
     program with host callbacks to its persistent compilation cache: every process compiled
     every simulation again."""
-
-    ts: jax.Array
 
     def wrap(self, direction):
         return type(self)(ts=self.ts * direction)
@@ -170,19 +168,6 @@ class _Ticks(dfx.AbstractStepSizeController):
     def init(self, terms, t0, t1, y0, dt0, args, func, error_order):
         del terms, t0, t1, y0, dt0, args, func, error_order
         return self.ts[1], 2
-
-    def adapt_step_size(
-        self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state
-    ):
-        del t0, y0, y1_candidate, args, y_error, error_order
-        return (
-            True,
-            t1,
-            self.ts[controller_state],
-            False,
-            controller_state + 1,
-            dfx.RESULTS.successful,
-        )
 
 
 def _integrate(
