@@ -102,23 +102,19 @@ def laid_out(batch: int, shard: bool) -> int:
 
 
 def _sharded(fn: Callable, shard: bool, args, params):
-    """`fn(args, params) -> outputs with a leading batch axis`, with the batch padded as
-    `laid_out` says and, when `shard` and big enough, split over every device."""
-    batch = batch_size(params)
-    if not _split(batch, shard):
-        out = fn(args, padded(params, share(batch)))
-        return jax.tree_util.tree_map(lambda a: a[:batch], out)
-    params = padded(params, laid_out(batch, shard))
+    """`fn(args, params) -> outputs with a leading batch axis`, for a batch already padded
+    as `laid_out` says, split over every device when `shard` and big enough."""
+    if not _split(batch_size(params), shard):
+        return fn(args, params)
     dynamic, static = eqx.partition(args, eqx.is_array)
     local = lambda d, p: fn(eqx.combine(d, static), p)
-    out = jax.shard_map(
+    return jax.shard_map(
         local,
         mesh=_mesh(),
         in_specs=(PartitionSpec(), PartitionSpec("batch")),
         out_specs=PartitionSpec("batch"),
         check_vma=False,
     )(dynamic, params)
-    return jax.tree_util.tree_map(lambda a: a[:batch], out)
 
 
 @functools.cache
@@ -137,19 +133,24 @@ def run(fn: Callable, args, params, *, chunk: int | None = None, shard: bool = T
     lane groups. `shard=False` keeps every call on one device.
     """
     batch = batch_size(params)
-    params = replicated(params)
     size = CHUNK * (len(jax.devices()) if shard else 1) if chunk is None else chunk
-    compiled = _compiled(fn, shard)
     if batch <= size and chunk is None:
-        # Padded before the call, so every batch size with the same layout (1 to 16
-        # controllers, say) shares one compilation.
-        total = laid_out(batch, shard)
-        out = compiled(args, replicated(padded(params, total)))
-        return jax.tree_util.tree_map(lambda a: a[:batch], out)
+        size = batch
+    compiled = _compiled(fn, shard)
+
+    def call(part):
+        # Padded before the call and trimmed after it, so every size with the same layout
+        # (1 to 16 controllers, say) shares one compilation.
+        n = batch_size(part)
+        out = compiled(args, replicated(padded(part, laid_out(size, shard))))
+        return jax.tree_util.tree_map(lambda a: a[:n], out)
+
     calls = -(-batch // size)
+    if calls == 1:
+        return call(params)
     full = padded(params, calls * size)
     parts = [
-        compiled(args, jax.tree_util.tree_map(lambda a, k=k: a[k * size : (k + 1) * size], full))
+        call(jax.tree_util.tree_map(lambda a, k=k: a[k * size : (k + 1) * size], full))
         for k in range(calls)
     ]
     return jax.tree_util.tree_map(lambda *a: jnp.concatenate(a)[:batch], *parts)
