@@ -277,8 +277,6 @@ def _ask(task: Task, state: SerialSearchState):
     keys = _climber_keys(
         state.key, state.fitness.shape[1], lambda k: jr.fold_in(k, state.generation + 1)
     )
-    if state.motion is None:
-        return _lanes(lambda p, k: task.space.perturb(p, key=k), _flat(state.population), keys)
     return _lanes(
         lambda p, k, m: task.space.perturb(p, key=k, motion=m),
         _flat(state.population),
