@@ -75,14 +75,24 @@ def replicated(tree):
 
 
 def padded(params, size: int):
-    """The batch padded to `size` with copies of its first controller."""
+    """The batch padded to `size` with copies of its first controller (concrete arrays
+    are padded by numpy: JAX would compile a slice, a broadcast and a concatenation for
+    every leaf shape, a few tenths of a second of a first call)."""
     batch = batch_size(params)
     if size <= batch:
         return params
-    return jax.tree_util.tree_map(
-        lambda a: jnp.concatenate([a, jnp.broadcast_to(a[:1], (size - batch, *a.shape[1:]))]),
-        params,
-    )
+
+    def pad(a):
+        xp = jnp if isinstance(a, jax.core.Tracer) or _extended(a) else np
+        a = a if xp is jnp else np.asarray(a)
+        return xp.concatenate([a, xp.broadcast_to(a[:1], (size - batch, *a.shape[1:]))])
+
+    return jax.tree_util.tree_map(pad, params)
+
+
+def _extended(a) -> bool:
+    """Whether `a` has a dtype numpy cannot hold (a typed PRNG key)."""
+    return jnp.issubdtype(jnp.result_type(a), jax.dtypes.extended)
 
 
 def _split(batch: int, shard: bool) -> bool:
