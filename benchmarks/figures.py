@@ -8,9 +8,9 @@ core), each in a fresh process so its compile time is its own.
     python benchmarks/figures.py            # the table, and benchmarks/figures.json
     python benchmarks/figures.py --quick    # B = 1 and 100, one timed call
 
-For scale (quoted, not measured here: 1,000-step rollouts of the 8-joint MuJoCo 'ant' on this
-machine): MuJoCo's C engine about 33 evals/s on 2 threads, MJX about 15/s at B = 1000, brax
-5-15/s; the paper: 3.3/s for Rex (0.3 s per evaluation on a DEC 3000/400).
+For scale, the paper's own figure: 3.3/s for Rex (0.3 s per evaluation on a DEC 3000/400).
+Other engines' figures belong beside ours only when measured on the same machine in the same
+sitting (`../shared/perf-lab/peers/`), so none is quoted here.
 """
 
 import argparse
@@ -27,7 +27,7 @@ CASES = (
     ("cujo", "time_bsr"),
     ("rex", "time_bsr"),
 )
-QUOTED = {"MuJoCo C (ant, 2 threads)": 33.0, "MJX (ant, B=1000)": 15.0, "paper (Rex)": 3.3}
+PAPER_REX = 3.3  # evaluations/s, paper 004 (0.3 s per evaluation on a DEC 3000/400)
 DT, DURATION = 0.005, 5.0
 
 
@@ -122,11 +122,12 @@ def main() -> None:
     worst = max(cell["compile_s"] for cell in rex["B"].values())
     print(f"Rex compile, slowest batch size: {worst:.1f} s (target <= 10 s)")
     top = rex["B"][str(batches[-1])]
-    print(f"Rex at B = {batches[-1]}: {top['evals_per_s']:.0f} evals/s; for scale (quoted):")
-    for label, value in QUOTED.items():
-        print(f"  {label}: {value:g}/s  (ratio {top['evals_per_s'] / value:.0f}x)")
+    print(
+        f"Rex at B = {batches[-1]}: {top['evals_per_s']:.0f} evals/s "
+        f"({top['evals_per_s'] / PAPER_REX:.0f}x the paper's {PAPER_REX}/s)"
+    )
     out = Path(__file__).with_suffix(".json")
-    out.write_text(json.dumps({"results": results, "quoted": QUOTED}, indent=2) + "\n")
+    out.write_text(json.dumps({"results": results, "paper_rex": PAPER_REX}, indent=2) + "\n")
     print(f"wrote {out}")
 
 
