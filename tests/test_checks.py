@@ -195,3 +195,72 @@ def test_jump_needs_every_point_clear_of_the_floor_at_once_and_an_upright_landin
     assert not crooked and crooked.figures["final_tilt_degrees"] == pytest.approx(40, abs=0.1)
     still_up = jm.checks.jump(jumper(0.3, duration=0.5), body_length=1.0)  # ends at the top
     assert not still_up and still_up.figures["on_floor_at_end"] == 0.0
+
+
+def biped(duration=5.0, speed=0.8, stride=0.5, heading=lambda t: 0.0, com_z=lambda t: 1.0,
+          down=None):
+    """Three points, a left foot, a right foot and a head 1.7 m up (the standing height),
+    walking along x at `speed` with the heading `heading(t)` (rad about z); by default each
+    foot is down for 60% of every `stride` s, the right half a stride after the left."""
+    ts = np.linspace(0, duration, int(duration / 0.02) + 1)
+    com = np.array([[speed * t, 0.0, com_z(t)] for t in ts])
+    frames = np.array([rot("z", heading(t)) for t in ts])
+    rel = np.array([[0.0, 0.1, -1.0], [0.0, -0.1, -1.0], [0.0, 0.0, 0.7]])
+    points = com[:, None] + np.einsum("tij,nj->tni", frames, rel)
+    if down is None:
+        down = lambda t: [(t / stride) % 1 < 0.6, ((t / stride) + 0.5) % 1 < 0.6, False]
+    contact = np.array([down(t) for t in ts], dtype=bool)
+    return jm.Trajectory(
+        ts=jnp.asarray(ts),
+        points=jnp.asarray(points),
+        com=jnp.asarray(com),
+        frame=jnp.asarray(frames),
+        contact=jnp.asarray(contact),
+        finite=jnp.asarray(True),
+    )
+
+
+FEET = ((0,), (1,))
+
+
+def test_walk_accepts_alternating_steps_and_rejects_hops_turns_and_falls():
+    walker = biped()
+    result = jm.checks.walk(walker, feet=FEET)
+    assert result.passed, result.summary()
+    # 4 m along x over a standing height of 1.7 m; both feet start down, then a step every
+    # half stride: the right foot lands at 0.25, 0.75, ..., 4.75 s, the left at 0.5, ...,
+    # 5.0 s.
+    assert result.figures["forward_heights"] == pytest.approx(4.0 / 1.7)
+    assert result.figures["standing_height_m"] == pytest.approx(1.7)
+    assert result.figures["steps"] == result.figures["touch_downs"] == 20
+    # Both feet landing together (a two-footed hop): touch-downs but no step.
+    hop = biped(down=lambda t: [(t / 0.5) % 1 < 0.6] * 2 + [False])
+    result = jm.checks.walk(hop, feet=FEET)
+    assert not result and result.figures["steps"] == 0 and result.figures["touch_downs"] == 20
+    # One foot only, the other held up: its first landing is one step, the rest repeat it.
+    limp = biped(down=lambda t: [(t / 0.5) % 1 < 0.6, False, False])
+    result = jm.checks.walk(limp, feet=FEET)
+    assert not result and result.figures["steps"] == 1
+    # A steady turn of 45 degrees over the walk leaves the heading criterion.
+    turning = jm.checks.walk(biped(heading=lambda t: math.radians(9.0) * t), feet=FEET)
+    assert not turning and turning.figures["max_heading_degrees"] == pytest.approx(45.0)
+    # A crouch to half the starting height of the centre of mass is a fall.
+    crouch = jm.checks.walk(biped(com_z=lambda t: 1.0 - 0.1 * t), feet=FEET)
+    assert not crouch and crouch.figures["min_com_height_share"] == pytest.approx(0.5)
+    # Too slow: 0.4 m/s for 5 s is 1.18 standing heights.
+    assert not jm.checks.walk(biped(speed=0.4), feet=FEET)
+    with pytest.raises(ValueError, match="walk needs the body's feet"):
+        jm.checks.walk(walker, feet=())
+
+
+def test_walk_counts_a_chattering_foot_once():
+    # From 1 s on, the left foot flickers up and down within its stance: each flicker is a
+    # touch-down, no step; the walk still alternates.
+    def chatter(t):
+        phase = (t / 0.5) % 1
+        left = phase < 0.6 and not (t > 1 and 0.2 < phase < 0.25)
+        return [left, ((t / 0.5) + 0.5) % 1 < 0.6, False]
+
+    result = jm.checks.walk(biped(down=chatter), feet=FEET)
+    assert result.passed, result.summary()
+    assert result.figures["touch_downs"] > result.figures["steps"] == 20

@@ -107,6 +107,10 @@ def test_defaults_fill_in_and_build_the_task():
         (dict(minimal(), wrold={"gravity": 1.0}), r"unknown section \[wrold\]"),
         (dict(minimal(), durations=3), r"unknown key 'durations'; allowed: name, seed"),
         ({"objective": {"forward": 1.0}}, r"no \[simulation\] section"),
+        (
+            minimal(check={"motion": "walk"}),
+            r"\[check\] motion = \"walk\" needs a body with feet .*'cube' has none",
+        ),
     ],
 )
 def test_bad_configs_name_the_key_the_value_and_what_is_allowed(raw, message):

@@ -714,6 +714,91 @@ def test_builders_have_their_documented_numbers_and_stand_on_the_floor(name, x64
     np.testing.assert_allclose(np.asarray(observed.points), pose, rtol=0, atol=ROUNDING_TOL)
 
 
+MOVE_TOL = 0.01  # m: a joint's documented sense must move a foot by more than this
+
+
+def _leg(figure, foot) -> list[int]:
+    """The rods from the hip (a rod hanging from the root) down to the foot's first node."""
+    ending_at = {d: k for k, (_, d) in enumerate(figure.rods)}
+    chain = [ending_at[foot[0]]]
+    while figure.parents[chain[-1]] != 0:
+        chain.append(figure.parents[chain[-1]])
+    return chain[::-1]
+
+
+def _swing(figure, rod) -> int:
+    """The free-angle index of `rod`'s joint about y (its swing in the sagittal plane)."""
+    for i, j in enumerate(figure.free):
+        joint = figure.joints[j]
+        if joint.rod == rod and joint.axis == (0.0, 1.0, 0.0):
+            return i
+    raise AssertionError(f"rod {rod} of {figure.name} has no free joint about y")
+
+
+def _moved(figure, index, angle):
+    """The rest pose and the pose with free angle `index` at `angle`, the root held."""
+    start = np.asarray(figure.start_angles, dtype=float)
+    moved = start.copy()
+    moved[index] = angle
+    # Unshifted: the lowest node is put on the floor, which a moved leg may change.
+    rest, after = figure.pose(start), figure.pose(moved)
+    return rest - rest[:, 2].min(), after - after[:, 2].min()
+
+
+@pytest.mark.parametrize("name", ["beryl_biped", "cujo", "rex", "bob"])
+def test_hips_and_knees_move_the_feet_the_way_the_builders_document(name, x64):
+    # The builders' convention (figure_builders' docstring): for a figure facing +x a hip
+    # flexes with a negative angle about y (the foot goes forward) and a knee with a positive
+    # one (the foot goes back); each foot's other joints and the other feet stay put.
+    figure = BUILDERS[name][0]()
+    assert len(figure.feet) >= 2
+    knees = 0
+    for f, foot in enumerate(figure.feet):
+        others = [n for g, other in enumerate(figure.feet) if g != f for n in other]
+        chain = _leg(figure, foot)
+        hip = _swing(figure, chain[0])
+        lo, hi = figure.ranges[hip]
+        assert lo < 0 < hi
+        rest, flexed = _moved(figure, hip, lo)
+        assert np.all(flexed[list(foot), 0] > rest[list(foot), 0] + MOVE_TOL), (foot, "hip")
+        np.testing.assert_allclose(flexed[others, :2], rest[others, :2], atol=ROUNDING_TOL)
+        if len(chain) < 2:
+            continue  # Cujo's legs are single rods: no knee
+        knees += 1
+        knee = _swing(figure, chain[1])
+        lo, hi = figure.ranges[knee]
+        assert lo == 0 < hi, "a knee bends one way only, positive"
+        rest, flexed = _moved(figure, knee, hi)
+        assert np.all(flexed[list(foot), 0] < rest[list(foot), 0] - MOVE_TOL), (foot, "knee")
+        np.testing.assert_allclose(flexed[others, :2], rest[others, :2], atol=ROUNDING_TOL)
+    assert knees == (0 if name == "cujo" else 2)
+
+
+def test_rex_ankles_lift_the_toes_and_set_a_bent_leg_flat(x64):
+    # Rex's ankles turn -40..0 degrees: negative lifts the toes; with the knee bent by an
+    # angle, the ankle at minus that angle puts the foot back parallel to the floor.
+    figure = jm.figures.rex()
+    for ankle_node, toe in figure.feet:
+        knee = _swing(figure, _leg(figure, (ankle_node,))[1])
+        foot_rod = next(k for k, rod in enumerate(figure.rods) if rod == (ankle_node, toe))
+        ankle = _swing(figure, foot_rod)
+        lo, hi = figure.ranges[ankle]
+        assert lo < 0 == hi
+        rest, lifted = _moved(figure, ankle, lo)
+        rise = lambda pose: pose[toe, 2] - pose[ankle_node, 2]
+        assert rise(lifted) > rise(rest) + MOVE_TOL
+        angles = np.asarray(figure.start_angles, dtype=float).copy()
+        angles[knee], angles[ankle] = 0.5, -0.5
+        bent = figure.pose(angles)
+        assert abs(rise(bent)) < ROUNDING_TOL * 1e3, rise(bent)
+
+
+def test_figure_feet_name_existing_nodes():
+    with pytest.raises(ValueError, match=r"Figure.feet\[1\] = \(7,\).*0..3"):
+        jm.Figure(NODES, RODS, feet=[(3,), (7,)])
+    assert jm.Figure(NODES, RODS, feet=[[3], (1, 2)]).feet == ((3,), (1, 2))
+
+
 NODES = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
 RODS = [(0, 1), (1, 2), (2, 3)]
 

@@ -104,7 +104,7 @@ def test_beryl_tumble_is_not_periodic():
             figure_config(search={"batch": 10}),
             r"\[search\] has an unknown key 'batch'; allowed: algorithm, climbers",
         ),
-        (figure_config(check={"motion": "walk"}), r"\[check\] motion = 'walk'; allowed"),
+        (figure_config(check={"motion": "hop"}), r"\[check\] motion = 'hop'; allowed"),
     ],
 )
 def test_bad_figure_configs_name_the_key_the_value_and_what_is_allowed(raw, message):

@@ -76,6 +76,32 @@ def test_forward_and_sideways_follow_the_initial_frame():
     assert value("sideways", turned) == pytest.approx(3.0)
 
 
+def test_feet_forward_moves_with_the_points_that_start_on_the_floor():
+    # Two feet on the floor and a head 1 m up; the body faces +y (rotated a quarter turn).
+    start = np.array([[0.0, 0.1, 0.0], [0.0, -0.1, 0.003], [0.0, 0.0, 1.0]])
+    frames = np.broadcast_to(rot_z(np.pi / 2), (3, 3, 3))
+    points = np.stack([start, start, start])
+    # The feet step 0.4 and 0.2 m along +y (forward) and 5 m along x (sideways, ignored); the
+    # head leans 3 m forward, which must not count.
+    points[-1, 0] += [5.0, 0.4, 0.0]
+    points[-1, 1] += [5.0, 0.2, 0.0]
+    points[-1, 2] += [0.0, 3.0, 0.0]
+    tr = jm.Trajectory(
+        ts=jnp.linspace(0.0, 1.0, 3),
+        points=jnp.asarray(points),
+        com=jnp.asarray(points.mean(1)),
+        frame=jnp.asarray(frames),
+        contact=jnp.asarray(points[..., 2] < 0),
+        finite=jnp.asarray(True),
+    )
+    assert value("feet_forward", tr) == pytest.approx(0.3)
+    # A tolerance below the second foot's 3 mm leaves the first foot alone.
+    assert value("feet_forward", tr, tolerance=0.001) == pytest.approx(0.4)
+    # A rigid body sliding 2 m forward: its bottom face (the cube's feet) moves 2 m.
+    slid = make(line([0, 0, 0.5], [2.0, 0.0, 0.5]))
+    assert value("feet_forward", slid) == pytest.approx(2.0)
+
+
 def test_max_height():
     z = 0.5 + np.sin(np.linspace(0, np.pi, 21)) * 2.0
     tr = make(np.stack([np.zeros(21), np.zeros(21), z], axis=1))

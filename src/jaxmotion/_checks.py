@@ -335,6 +335,108 @@ def jump(
     return _result("jump", t["finite"], figures, criteria)
 
 
+def _feet(feet, num_points: int, caller: str) -> tuple[tuple[int, ...], ...]:
+    feet = tuple(tuple(int(n) for n in foot) for foot in (feet or ()))
+    if len(feet) < 2 or any(not foot for foot in feet):
+        raise ValueError(
+            f"{caller} needs the body's feet (at least a left and a right one, e.g. "
+            f"Figure(feet=...); the builders set them); got feet = {feet!r}"
+        )
+    for foot in feet:
+        if any(not 0 <= n < num_points for n in foot):
+            raise ValueError(f"{caller}: foot {foot} names a point outside 0..{num_points - 1}")
+    return feet
+
+
+def _heading_degrees(frame: np.ndarray) -> np.ndarray:
+    """Each sample's heading (the forward axis seen from above) away from the first
+    sample's, degrees in [0, 180]; 180 where the forward axis is vertical (no heading)."""
+    h = frame[:, :2, 0]
+    norm = np.linalg.norm(h, axis=1)
+    unit = h / np.where(norm > 1e-9, norm, 1.0)[:, None]
+    cos = np.clip(unit @ unit[0], -1.0, 1.0)
+    return np.where(norm > 1e-9, np.degrees(np.arccos(cos)), 180.0)
+
+
+def steps(contact: np.ndarray, feet) -> tuple[int, int]:
+    """`(steps, touch_downs)` of a contact record `(samples, points)`: a foot is down when
+    any of its points touches the floor, and touches down when it goes from up to down
+    (the start, resting on the floor with no contact flag yet, counts as its state at the
+    next sample). Feet alternate sides by their order (left, right, left, ...). A touch-down
+    is a step when it is the only one at its sample and on the other side from the last
+    step (the first touch-down alone is the first step); a foot touching down again
+    (chatter, a hop) is no step, and feet of both sides touching down at once (a two-footed
+    hop) reset the alternation."""
+    down = np.stack([np.any(contact[:, list(foot)], axis=1) for foot in feet], axis=1)
+    if len(down) > 1:
+        down[0] = down[1]
+    landing = down[1:] & ~down[:-1]
+    count, last = 0, None
+    for row in landing:
+        sides = {int(f) % 2 for f in np.flatnonzero(row)}
+        if len(sides) > 1:  # both sides at once: a two-footed landing, no step
+            last = None
+        elif sides and (side := sides.pop()) != last:
+            count, last = count + 1, side
+    return count, int(landing.sum())
+
+
+def walk(
+    trajectory: Trajectory,
+    *,
+    feet,
+    min_heights: float = 1.5,
+    max_heading_degrees: float = 30.0,
+    min_height_share: float = 0.6,
+    min_steps: int = 4,
+) -> CheckResult:
+    """A walk (the second paper's section 4: Bob's walk, Rex's walking stages): travels
+    forward along the initial heading on alternating feet, without falling.
+
+    Passes when the centre of mass travels at least `min_heights` standing heights along
+    the figure's initial heading (its forward axis seen from above), the heading stays
+    within `max_heading_degrees` of the initial one at every saved instant, the centre of
+    mass never drops below `min_height_share` of its starting height, and the feet take at
+    least `min_steps` alternating steps: touch-downs, left and right taking turns (see
+    `steps`).
+
+    **Arguments:** the trajectory; `feet` (the body's feet, `Figure.feet`: tuples of point
+    indices, left and right alternating); the thresholds. The standing height is the
+    extent of the points above the lowest one at the start.
+    """
+    t = _single(trajectory, "walk")
+    points = np.asarray(trajectory.points, float)
+    feet = _feet(feet, points.shape[1], "walk")
+    height = float(points[0, :, 2].max() - points[0, :, 2].min())
+    height = _positive("the standing height", height)
+    forward = _forward(t)
+    heights = forward / height
+    heading = float(_heading_degrees(t["frame"]).max())
+    share = float(t["com"][:, 2].min() / t["com"][0, 2])
+    taken, touch_downs = steps(t["contact"], feet)
+    figures = {
+        "forward_m": forward,
+        "forward_heights": heights,
+        "standing_height_m": height,
+        "max_heading_degrees": heading,
+        "min_com_height_share": share,
+        "steps": float(taken),
+        "touch_downs": float(touch_downs),
+    }
+    criteria = {
+        f"travels forward >= {min_heights:g} standing heights (got {heights:.2f})": heights
+        >= min_heights,
+        f"heading within {max_heading_degrees:g} degrees of the start's (max {heading:.1f})": (
+            heading <= max_heading_degrees
+        ),
+        f"centre of mass never below {100 * min_height_share:g}% of its start height "
+        f"(min {100 * share:.0f}%)": share >= min_height_share,
+        f">= {min_steps} steps, left and right taking turns (got {taken} of "
+        f"{touch_downs} touch-downs)": taken >= min_steps,
+    }
+    return _result("walk", t["finite"], figures, criteria)
+
+
 CHECKS = {
     "leap": leap,
     "somersault": somersault,
@@ -343,4 +445,5 @@ CHECKS = {
     "cartwheel": cartwheel,
     "bound": bound,
     "jump": jump,
+    "walk": walk,
 }

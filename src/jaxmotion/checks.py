@@ -1,5 +1,5 @@
 """Motion checks: `leap`, `somersault`, `pirouette` (first paper) and `shuffle`,
-`cartwheel`, `bound`, `jump` (second paper), each a function of a Trajectory that returns a
+`cartwheel`, `bound`, `jump`, `walk` (second paper), each a function of a Trajectory that returns a
 `CheckResult` (see each function for its thresholds)."""
 
 from ._checks import CHECKS as CHECKS
@@ -11,6 +11,8 @@ from ._checks import leap as leap
 from ._checks import pirouette as pirouette
 from ._checks import shuffle as shuffle
 from ._checks import somersault as somersault
+from ._checks import steps as steps
+from ._checks import walk as walk
 
 __all__ = [
     "CHECKS",
@@ -22,4 +24,6 @@ __all__ = [
     "pirouette",
     "shuffle",
     "somersault",
+    "steps",
+    "walk",
 ]

@@ -123,6 +123,10 @@ class Figure(AbstractBody):
         joint turns about the y axis. Its state then carries only the planar components.
     - `frame`: the body frame at rest, columns forward, left, up (default: x, y, z).
     - `name`: a label for plots and summaries.
+    - `feet`: the figure's feet, each a tuple of the nodes it stands on (a point foot one
+        node, a foot rod its two), in left-right pairs (left first; a planar figure's front
+        leg counts as its left). Walking terms and checks read them (a foot is down when
+        any of its nodes touches the floor, and is where its nodes' mean is); default none.
 
     The start pose has every free angle at 0, or at the nearer end of its range when 0 is
     outside it.
@@ -145,6 +149,7 @@ class Figure(AbstractBody):
     planar: bool = eqx.field(static=True)
     frame: tuple[tuple[float, float, float], ...] = eqx.field(static=True)
     name: str = eqx.field(static=True)
+    feet: tuple[tuple[int, ...], ...] = eqx.field(static=True)
 
     def __init__(
         self,
@@ -157,6 +162,7 @@ class Figure(AbstractBody):
         planar: bool = False,
         frame: Float[ArrayLike, "3 3"] | None = None,
         name: str = "figure",
+        feet: Sequence[Sequence[int]] = (),
     ):
         nodes_a = _floats("nodes", nodes, "(num_nodes, 3)")
         if nodes_a.ndim != 2 or nodes_a.shape[1] != 3 or not np.all(np.isfinite(nodes_a)):
@@ -257,6 +263,18 @@ class Figure(AbstractBody):
             _fail(f"Figure.frame = {frame!r}; allowed: a 3x3 rotation (orthonormal columns)")
         if np.linalg.det(frame_a) < 0:
             _fail("Figure.frame is a reflection; allowed: a right-handed rotation")
+        feet_t = []
+        for f, foot in enumerate(feet):
+            try:
+                foot_t = tuple(int(n) for n in foot)
+            except (TypeError, ValueError):
+                foot_t = ()
+            if not foot_t or any(not 0 <= n < num_nodes for n in foot_t):
+                _fail(
+                    f"Figure.feet[{f}] = {foot!r}; allowed: a non-empty tuple of node indices "
+                    f"0..{num_nodes - 1}"
+                )
+            feet_t.append(foot_t)
         # Order joints by rod (stable), so kinematics visits each rod's angles together.
         checked.sort(key=lambda jt: jt.rod)
         self.nodes = tuple(tuple(float(x) for x in row) for row in nodes_a)
@@ -267,6 +285,7 @@ class Figure(AbstractBody):
         self.planar = bool(planar)
         self.frame = tuple(tuple(float(x) for x in row) for row in frame_a)
         self.name = str(name)
+        self.feet = tuple(feet_t)
 
     # ------------------------------------------------------------------ structure
 

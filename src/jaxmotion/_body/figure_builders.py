@@ -2,8 +2,12 @@
 rods and joint ranges it chose from the paper's words (`notebooks/figures.ipynb` shows them).
 
 Conventions: x forward, y left, z up; lengths in m, masses in kg, ranges in degrees in the
-docstrings (radians in the `Joint`s). Planar figures turn about y: a positive angle turns a
-rod's +x end down (toward -z), i.e. clockwise when seen from +y.
+docstrings (radians in the `Joint`s). An angle about y is a right-handed turn about +y: a
+positive angle turns a rod's +x end down (toward -z) and a hanging rod's lower end back
+(toward -x). So for a figure facing +x a knee flexes (the foot goes back) with a positive
+angle, a hip flexes (the thigh, and the foot, swing forward) with a negative one, and a
+torso or head leans forward with a positive one. `tests/test_figure.py` checks each
+builder's senses by moving its joints.
 """
 
 import math
@@ -34,7 +38,7 @@ def star_man() -> Figure:
     (each limb against the head), each with range -45..45 degrees about its rest direction.
     Masses: head 2 kg, arms 1 kg, legs 1.5 kg; rods 3 cm thick.
 
-    He stands on his two feet (the leg tips), 0.59 m apart.
+    He stands on his two feet (the leg tips, `feet`: front, then back), 0.59 m apart.
     """
     hub = np.zeros(3)
     limbs = [90.0, 18.0, 162.0, -54.0, 234.0]  # head, front arm, back arm, front leg, back leg
@@ -49,6 +53,7 @@ def star_man() -> Figure:
         radii=0.03,
         planar=True,
         name="star_man",
+        feet=((4,), (5,)),
     )
 
 
@@ -56,21 +61,22 @@ def beryl_biped() -> Figure:
     """Beryl Biped (2D): a torso with two two-part legs. The torso (the root, 0.6 m, 4 kg)
     stands up from the hip; each leg is a thigh (0.45 m, 1.5 kg) from the hip and a shin
     (0.45 m, 1 kg) from the knee, resting 10 degrees either side of vertical. 5 rods, 6
-    nodes, 4 joint angles: hips -60..60 degrees against the torso, knees 0..90 degrees
-    (bending backward, as a knee does when the figure faces +x).
+    nodes, 4 joint angles: hips -60..60 degrees against the torso (negative flexes: the
+    thigh swings forward), knees 0..90 degrees (positive flexes: the shin, and the foot, go
+    back, as a knee bends when the figure faces +x). Feet: the front leg's tip (as left),
+    then the back leg's.
     """
     hip = np.zeros(3)
     front = _polar(-80.0, 0.45)
     back = _polar(-100.0, 0.45)
     nodes = [hip, hip + _polar(90.0, 0.6), hip + front, hip + 2 * front, hip + back, hip + 2 * back]
     rods = [(0, 1), (0, 2), (2, 3), (0, 4), (4, 5)]
-    # Knee bending backward: the shin turns toward -x, i.e. counter-clockwise seen from +y:
-    # negative angles about +y in our convention. Range stated as 0..90 degrees of bend.
+    # A knee bends backward: the shin's lower end turns toward -x, a positive angle about +y.
     joints = [
         Joint(1, _Y, *_deg(-60, 60)),
-        Joint(2, _Y, *_deg(-90, 0)),
+        Joint(2, _Y, *_deg(0, 90)),
         Joint(3, _Y, *_deg(-60, 60)),
-        Joint(4, _Y, *_deg(-90, 0)),
+        Joint(4, _Y, *_deg(0, 90)),
     ]
     return Figure(
         np.array(nodes),
@@ -80,6 +86,7 @@ def beryl_biped() -> Figure:
         radii=0.03,
         planar=True,
         name="beryl_biped",
+        feet=((3,), (5,)),
     )
 
 
@@ -95,7 +102,8 @@ def cujo() -> Figure:
     (0.3 m, 0.2 kg) rising backward at 45 degrees from the hips. Each rod's joint has two
     angles (the paper's Figure 6): a swing about the lateral axis y and a splay about the
     forward axis x (the head and tail: nod about y, turn about z). Ranges (degrees): legs
-    swing -18..18 and splay -7..7; head nod -15..15 and turn -10..10; tail -15..15 both ways.
+    swing -18..18 (negative: forward) and splay -7..7; head nod -15..15 and turn -10..10;
+    tail -15..15 both ways.
     Average range 25.8 degrees.
     """
     nodes: list = [np.array([-0.4, 0.0, 0.4]), np.array([0.4, 0.0, 0.4])]  # hips, shoulders
@@ -117,6 +125,7 @@ def cujo() -> Figure:
         joints=joints,
         radii=0.04,
         name="cujo",
+        feet=((2,), (3,), (4,), (5,)),
     )
 
 
@@ -129,9 +138,12 @@ def rex() -> Figure:
 
     Two angles per joint, 28 in all (the paper's count, 2N - 2); about two thirds are fixed
     and 10 are free (the paper's 47 search variables with 4 rules), average range 42 degrees:
-    each hip swings -30..30 about y and splays -10..10 about x, each knee bends -40..0 about
-    y, each ankle 0..40 about y; the tail's first rod turns -25..25 about z and the neck nods
-    -25..25 about y. Every other angle is fixed at 0.
+    each hip swings -30..30 about y (negative flexes: the leg swings forward) and splays
+    -10..10 about x, each knee bends 0..40 about y (positive flexes: the foot goes back), each
+    ankle turns -40..0 about y (negative lifts the toes: with the knee bent by an angle, the
+    ankle at minus that angle sets the foot flat again); the tail's first rod turns -25..25
+    about z and the neck nods -25..25 about y (positive: down). Every other angle is fixed
+    at 0. Feet: each foot rod's two nodes (ankle, toe), left then right.
     """
     nodes: list = [np.array([0.0, 0.15, 1.0]), np.array([0.0, -0.15, 1.0])]  # hips L, R
     rods = [(0, 1)]
@@ -162,10 +174,10 @@ def rex() -> Figure:
         (index[legs[1][0]], _Y): _deg(-30, 30),
         (index[legs[0][0]], _X): _deg(-10, 10),
         (index[legs[1][0]], _X): _deg(-10, 10),
-        (index[legs[0][1]], _Y): _deg(-40, 0),
-        (index[legs[1][1]], _Y): _deg(-40, 0),
-        (index[legs[0][2]], _Y): _deg(0, 40),
-        (index[legs[1][2]], _Y): _deg(0, 40),
+        (index[legs[0][1]], _Y): _deg(0, 40),
+        (index[legs[1][1]], _Y): _deg(0, 40),
+        (index[legs[0][2]], _Y): _deg(-40, 0),
+        (index[legs[1][2]], _Y): _deg(-40, 0),
         (index[tail1], _Z): _deg(-25, 25),
         (index[neck], _Y): _deg(-25, 25),
     }
@@ -174,7 +186,10 @@ def rex() -> Figure:
             joints.append(Joint(k, axis, *free[(k, axis)]) if (k, axis) in free else fixed(k, axis))
     masses = [6.0, 5.0, 1.0, 1.5, 1.5, 0.8, 0.4]
     masses += [2.0, 1.0, 0.4] * 2 + [0.3, 0.3]
-    return Figure(np.array(nodes), rods, masses=masses, joints=joints, radii=0.04, name="rex")
+    feet = tuple(tuple(foot) for _, _, foot in legs)
+    return Figure(
+        np.array(nodes), rods, masses=masses, joints=joints, radii=0.04, name="rex", feet=feet
+    )
 
 
 def bob() -> Figure:
@@ -184,10 +199,11 @@ def bob() -> Figure:
     arms (0.63 m, 2 kg) hanging from the shoulders.
 
     Two angles per joint, 16 in all; 6 fixed and 10 free with ranges a little under 25
-    degrees on average (24.8): hips swing -15..15 about y and splay -8..8 about x; knees bend
-    -30..0 about y; the torso leans -10..10 about y and -8..8 about x; the arms swing
-    -15..15 about y. Fixed at 0: the knees' x angles, the head's two angles and the arms'
-    x angles.
+    degrees on average (24.8): hips swing -15..15 about y (negative flexes: the leg swings
+    forward) and splay -8..8 about x; knees bend 0..30 about y (positive flexes: the foot
+    goes back); the torso leans -10..10 about y (positive: forward) and -8..8 about x; the
+    arms swing -15..15 about y (positive: back). Fixed at 0: the knees' x angles, the head's
+    two angles and the arms' x angles. Feet: the shins' lower ends, left then right.
     """
     nodes: list = [np.array([0.0, 0.15, 0.9]), np.array([0.0, -0.15, 0.9])]
     rods = [(0, 1)]
@@ -212,8 +228,11 @@ def bob() -> Figure:
     ]
     for t, sh in zip(k_thighs, k_shins, strict=True):
         joints += [Joint(t, _Y, *_deg(-15, 15)), Joint(t, _X, *_deg(-8, 8))]
-        joints += [Joint(sh, _Y, *_deg(-30, 0)), Joint(sh, _X, 0.0, 0.0)]
+        joints += [Joint(sh, _Y, *_deg(0, 30)), Joint(sh, _X, 0.0, 0.0)]
     for a in k_arms:
         joints += [Joint(a, _Y, *_deg(-15, 15)), Joint(a, _X, 0.0, 0.0)]
     masses = [6.0, 12.0, 4.0, 4.0, 2.5, 4.0, 2.5, 2.0, 2.0]
-    return Figure(np.array(nodes), rods, masses=masses, joints=joints, radii=0.05, name="bob")
+    feet = tuple((shin[1],) for _, shin in legs)
+    return Figure(
+        np.array(nodes), rods, masses=masses, joints=joints, radii=0.05, name="bob", feet=feet
+    )

@@ -311,8 +311,9 @@ CHECK = {
     "motion": Key(
         "string",
         _REQUIRED,
-        lambda v: v in ("leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound", "jump"),
-        '"leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound" or "jump"',
+        lambda v: v
+        in ("leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound", "jump", "walk"),
+        '"leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound", "jump" or "walk"',
     ),
 }
 
@@ -464,6 +465,11 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
     )
     if check_cfg is not None:
         resolved["check"] = check_cfg
+        if check_cfg["motion"] == "walk" and len(getattr(body, "feet", ())) < 2:
+            raise ConfigError(
+                f'[check] motion = "walk" needs a body with feet (a left and a right one); '
+                f"{body_cfg.get('figure', body_cfg.get('lattice', 'this body'))!r} has none"
+            )
     return Experiment(
         name=head["name"],
         seed=head["seed"],

@@ -266,6 +266,8 @@ def run_check(experiment: Experiment, trajectory):
     available = {"body_length": float(task.body.body_length)}
     if hasattr(task.space, "t_per"):
         available["period"] = task.space.t_per
+    if getattr(task.body, "feet", ()):
+        available["feet"] = task.body.feet
     wanted = inspect.signature(check).parameters
     return check(trajectory, **{k: v for k, v in available.items() if k in wanted})
 

@@ -58,6 +58,25 @@ def sideways(trajectory: Trajectory) -> Float[Array, ""]:
     return jnp.abs(jnp.dot(shift, direction))
 
 
+@register_term("feet_forward")
+def feet_forward(trajectory: Trajectory, tolerance: float = 0.01) -> Float[Array, ""]:
+    """Mean final horizontal displacement of the feet along the body's initial forward
+    direction (m; the second paper rewarded Bob's feet moving forward with his centre of
+    mass, footnote 10).
+
+    The feet are the points that stand on the floor at the start: within `tolerance` m of
+    the lowest point at the first sample (Bob's and Star-Man's two point feet, Rex's four
+    foot nodes, a lattice's bottom masses). A body that only leans forward moves its centre
+    of mass but not its feet; one that walks moves both.
+    """
+    z0 = trajectory.points[0, :, 2]
+    feet = z0 <= jnp.min(z0) + tolerance
+    direction = _horizontal_unit(trajectory.frame[0, :, 0])
+    shift = trajectory.points[-1, :, :2] - trajectory.points[0, :, :2]
+    along = shift @ direction
+    return jnp.sum(jnp.where(feet, along, 0.0)) / jnp.sum(feet)
+
+
 @register_term("distance")
 def distance(trajectory: Trajectory) -> Float[Array, ""]:
     """Final horizontal displacement of the centre of mass in any direction (m)."""
