@@ -32,6 +32,11 @@ def trajectory(duration, com, angles=None, axis="y", contact=None):
         contact = points[..., 2] < 1e-6
     else:
         contact = np.array([contact(t) for t in ts])
+    return recorded(ts, points, com, frames, contact)
+
+
+def recorded(ts, points, com, frames, contact):
+    """A finite trajectory of these samples."""
     return jm.Trajectory(
         ts=jnp.asarray(ts),
         points=jnp.asarray(points),
@@ -210,14 +215,7 @@ def biped(duration=5.0, speed=0.8, stride=0.5, heading=lambda t: 0.0, com_z=lamb
     if down is None:
         down = lambda t: [(t / stride) % 1 < 0.6, ((t / stride) + 0.5) % 1 < 0.6, False]
     contact = np.array([down(t) for t in ts], dtype=bool)
-    return jm.Trajectory(
-        ts=jnp.asarray(ts),
-        points=jnp.asarray(points),
-        com=jnp.asarray(com),
-        frame=jnp.asarray(frames),
-        contact=jnp.asarray(contact),
-        finite=jnp.asarray(True),
-    )
+    return recorded(ts, points, com, frames, contact)
 
 
 FEET = ((0,), (1,))
