@@ -52,18 +52,26 @@ def hopping(t, period=1.0, airborne=0.3):
     return np.full(8, not (0 < (t % period) < airborne))
 
 
+def hop(speed, height=0.1, period=1.0, airborne=0.3):
+    """The unit cube's centre of mass (its bottom face on the floor at z = 0.5) travelling
+    along x at `speed`, lifted `height` off the floor over the first `airborne` of every
+    period (after t = 0), in step with `hopping`."""
+    return lambda t: [speed * t, 0, 0.5 + (height if 0 < (t % period) < airborne else 0.0)]
+
+
 def test_leap_accepts_a_leaping_spider_and_rejects_a_shuffle_or_a_fall():
-    leaper = trajectory(4.5, lambda t: [t, 0, 0.5], contact=hopping)
+    leaper = trajectory(4.5, hop(1.0), contact=hopping)
     result = jm.checks.leap(leaper, body_length=1.0, period=1.0)
     assert result.passed, result.summary()
     assert result.figures["airborne_periods"] == 5  # periods 0..4 each start with a leap
     assert result.figures["forward_body_lengths"] == pytest.approx(4.5)
     shuffle = trajectory(4.5, lambda t: [t, 0, 0.5], contact=lambda t: np.ones(8, bool))
     assert not jm.checks.leap(shuffle, body_length=1.0, period=1.0)
-    short = trajectory(4.5, lambda t: [0.5 * t, 0, 0.5], contact=hopping)
+    short = trajectory(4.5, hop(0.5), contact=hopping)
     assert not jm.checks.leap(short, body_length=1.0, period=1.0)
-    assert jm.checks.leap(short, body_length=0.5, period=1.0)  # 2.25 m is 4.5 of its lengths
-    fallen = trajectory(4.5, lambda t: [t, 0, 0.5], angles=lambda t: 0.3 * t, contact=hopping)
+    # 2.25 m is 4.5 of its lengths (and the 0.1 m hops clear 0.05 of 0.5 m).
+    assert jm.checks.leap(short, body_length=0.5, period=1.0)
+    fallen = trajectory(4.5, hop(1.0), angles=lambda t: 0.3 * t, contact=hopping)
     result = jm.checks.leap(fallen, body_length=1.0, period=1.0)
     assert not result and result.figures["max_tilt_degrees"] > 45
 
@@ -114,7 +122,7 @@ def test_pirouette_accepts_a_spin_in_place_and_rejects_drift_tilt_or_too_little_
 
 
 def test_a_run_that_blew_up_fails_and_bad_arguments_raise():
-    leaper = trajectory(4.5, lambda t: [t, 0, 0.5], contact=hopping)
+    leaper = trajectory(4.5, hop(1.0), contact=hopping)
     broken = jm.Trajectory(
         ts=leaper.ts,
         points=leaper.points,
@@ -151,7 +159,7 @@ def test_shuffle_needs_a_point_on_the_floor_after_the_start_and_forward_travel()
     result = jm.checks.shuffle(shuffler, body_length=1.0)
     assert result.passed, result.summary()
     assert result.figures["grounded_share"] == 1.0
-    hopper = trajectory(5.0, lambda t: [0.4 * t, 0, 0.5], contact=hopping)
+    hopper = trajectory(5.0, hop(0.4), contact=hopping)
     assert not jm.checks.shuffle(hopper, body_length=1.0)
     slow = trajectory(5.0, lambda t: [0.1 * t, 0, 0.5], contact=grounded)
     assert not jm.checks.shuffle(slow, body_length=1.0)
@@ -171,11 +179,20 @@ def test_cartwheel_needs_a_full_turn_about_the_lateral_axis_and_forward_travel()
 
 
 def test_bound_needs_airborne_phases_and_two_body_lengths():
-    bounder = trajectory(5.0, lambda t: [0.6 * t, 0, 0.5], contact=hopping)
+    bounder = trajectory(5.0, hop(0.6), contact=hopping)
     result = jm.checks.bound(bounder, body_length=1.0)
     assert result.passed, result.summary()
     assert result.figures["airborne_phases"] == 5  # each of periods 0..4 starts with a leap
-    walker = trajectory(5.0, lambda t: [0.6 * t, 0, 0.5], contact=lambda t: np.ones(8, bool))
+    assert result.figures["max_clearance_body_lengths"] == pytest.approx(0.1)
+    # Skimming: no contact flag (every point 2 mm up) is not flying.
+    skimmer = trajectory(5.0, hop(0.6, height=0.002), contact=hopping)
+    result = jm.checks.bound(skimmer, body_length=1.0)
+    assert not result and result.figures["airborne_phases"] == 0
+    # Hops of one 20 ms sample are shorter than a flight's 40 ms.
+    flicks = trajectory(5.0, hop(0.6, airborne=0.03), contact=lambda t: hopping(t, airborne=0.03))
+    assert not jm.checks.bound(flicks, body_length=1.0)
+    assert jm.checks.bound(flicks, body_length=1.0, min_flight_seconds=0.02)
+    walker = trajectory(5.0, lambda t: [0.6 * t, 0, 0.5])
     assert not jm.checks.bound(walker, body_length=1.0)
     assert not jm.checks.bound(bounder, body_length=2.0)  # 3 m is 1.5 of its lengths
 

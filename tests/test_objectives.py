@@ -102,6 +102,18 @@ def test_feet_forward_moves_with_the_points_that_start_on_the_floor():
     assert value("feet_forward", slid) == pytest.approx(2.0)
 
 
+def test_flight_time_counts_intervals_with_every_point_high_enough():
+    # The unit cube hops 0.1 m up over 5 of every 10 samples (intervals of 0.1 s), or
+    # skims 2 mm up (no contact flag either way).
+    lift = np.array([0.0] + [0.1 if k % 10 < 5 else 0.0 for k in range(1, 21)])
+    hopping = make(np.stack([np.zeros(21), np.zeros(21), 0.5 + lift], axis=1), duration=2.0)
+    assert value("flight_time", hopping) == pytest.approx(1.0)
+    assert value("flight_time", hopping, height=0.2) == 0.0
+    skimming = make(np.stack([np.zeros(21), np.zeros(21), 0.5 + lift / 50], axis=1), duration=2.0)
+    assert value("flight_time", skimming) == 0.0
+    assert value("flight_time", skimming, height=0.001) == pytest.approx(1.0)
+
+
 def test_max_height():
     z = 0.5 + np.sin(np.linspace(0, np.pi, 21)) * 2.0
     tr = make(np.stack([np.zeros(21), np.zeros(21), z], axis=1))

@@ -99,6 +99,49 @@ def _result(name: str, finite: bool, figures: dict, criteria: dict) -> CheckResu
     return CheckResult(name, all(criteria.values()), figures, criteria)
 
 
+FLIGHT_CLEARANCE = 0.05
+"""A flight's clearance: every point at least this many body lengths above the floor."""
+FLIGHT_SECONDS = 0.04
+"""A flight's shortest duration, s (two samples at the usual 20 ms save interval)."""
+
+
+def flights(
+    trajectory: Trajectory,
+    *,
+    body_length: float,
+    clearance: float = FLIGHT_CLEARANCE,
+    min_seconds: float = FLIGHT_SECONDS,
+) -> list[tuple[int, int]]:
+    """The flight phases of a motion, the one definition of "airborne" every check uses:
+    maximal runs of saved instants at which every point is at least `clearance` body
+    lengths above the floor, lasting at least `min_seconds` (a run of `k` samples lasts `k`
+    save intervals). Returns each flight's first and last sample index.
+
+    A contact flag alone says too little: a point 1 mm above a penalty floor has none, so a
+    body skimming the floor looked airborne. Off the floor means visibly off it.
+    """
+    clearance = float(clearance)
+    if not (math.isfinite(clearance) and clearance >= 0):
+        raise ValueError(f"clearance = {clearance!r}; allowed: a number >= 0 (body lengths)")
+    body_length = _positive("body_length", body_length)
+    ts = np.asarray(trajectory.ts, float)
+    lowest = np.min(np.asarray(trajectory.points, float)[:, :, 2], axis=1)
+    up = lowest >= clearance * body_length
+    if clearance == 0:
+        up &= ~np.any(np.asarray(trajectory.contact, bool), axis=1)
+    up[0] = False  # the start, resting on the floor, is no flight
+    interval = float(ts[1] - ts[0]) if len(ts) > 1 else 0.0
+    out, start = [], None
+    for i, flying in enumerate([*up.tolist(), False]):
+        if flying and start is None:
+            start = i
+        elif not flying and start is not None:
+            if (i - start) * interval >= min_seconds - 1e-9:
+                out.append((start, i - 1))
+            start = None
+    return out
+
+
 def leap(
     trajectory: Trajectory,
     *,
@@ -107,13 +150,15 @@ def leap(
     min_lengths: float = 3.0,
     max_tilt_degrees: float = 45.0,
     min_airborne_periods: int = 3,
+    clearance: float = FLIGHT_CLEARANCE,
+    min_flight_seconds: float = FLIGHT_SECONDS,
 ) -> CheckResult:
     """The spider's leap (first paper, Figure 7): travels forward by leaps, staying upright.
 
     Passes when the centre of mass travels forward at least `min_lengths` body lengths over
     the trajectory, the body's up axis never tilts more than `max_tilt_degrees` from vertical,
-    and in at least `min_airborne_periods` of the controller's periods there is a saved
-    instant with no point touching the floor.
+    and at least `min_airborne_periods` of the controller's periods hold a flight (`flights`:
+    every point `clearance` body lengths off the floor for `min_flight_seconds`).
 
     **Arguments:** the trajectory; `body_length` (m, e.g. `lattice.body_length`); the
     controller's `period` (s, `t_per`); the thresholds.
@@ -122,18 +167,23 @@ def leap(
     travel, far = _travel(t, body_length, min_lengths)
     period = _positive("period", period)
     tilt = float(_tilt_degrees(t["frame"]).max())
-    airborne = ~np.any(t["contact"], axis=1)
-    airborne[0] = False  # the start, resting on the floor, is not a leap
+    phases = flights(
+        trajectory, body_length=body_length, clearance=clearance, min_seconds=min_flight_seconds
+    )
     periods = np.floor(t["ts"] / period + 1e-9).astype(int)
-    airborne_periods = len(set(periods[airborne].tolist()))
+    airborne_periods = len({int(periods[i]) for a, b in phases for i in range(a, b + 1)})
     figures = {
         **travel,
         "max_tilt_degrees": tilt,
         "airborne_periods": float(airborne_periods),
+        "flights": float(len(phases)),
         "periods": float(t["ts"][-1] / period),
     }
     steady = f"never tilts more than {max_tilt_degrees:g} degrees (max {tilt:.1f})"
-    leaps = f"airborne in >= {min_airborne_periods} periods (got {airborne_periods})"
+    leaps = (
+        f"flies (every point >= {clearance:g} body lengths up for >= {min_flight_seconds:g} s) "
+        f"in >= {min_airborne_periods} periods (got {airborne_periods})"
+    )
     criteria = {
         **far,
         steady: tilt <= max_tilt_degrees,
@@ -216,14 +266,6 @@ def pirouette(
     return _result("pirouette", t["finite"], figures, criteria)
 
 
-def _airborne_phases(t: dict) -> int:
-    """How many separate stretches of saved instants have no point on the floor (the start,
-    resting on the floor, is not one)."""
-    airborne = ~np.any(t["contact"], axis=1)
-    airborne[0] = False
-    return int(np.sum(airborne[1:] & ~airborne[:-1]))
-
-
 def shuffle(trajectory: Trajectory, *, body_length: float, min_lengths: float = 1.0) -> CheckResult:
     """Star-Man's shuffle (second paper, Figure 9): travels forward with some point always on
     the floor.
@@ -278,20 +320,30 @@ def bound(
     body_length: float,
     min_lengths: float = 2.0,
     min_airborne_phases: int = 2,
+    clearance: float = FLIGHT_CLEARANCE,
+    min_flight_seconds: float = FLIGHT_SECONDS,
 ) -> CheckResult:
     """Cujo's bounding (second paper, Figure 15): travels forward by leaps.
 
     Passes when the centre of mass travels forward at least `min_lengths` body lengths and
-    the body leaves the floor entirely (no point touching it) in at least
-    `min_airborne_phases` separate phases.
+    the body flies (`flights`: every point `clearance` body lengths off the floor for
+    `min_flight_seconds`) in at least `min_airborne_phases` separate phases.
     """
     t = _single(trajectory, "bound")
     travel, far = _travel(t, body_length, min_lengths)
-    phases = _airborne_phases(t)
-    figures = {**travel, "airborne_phases": float(phases)}
+    phases = flights(
+        trajectory, body_length=body_length, clearance=clearance, min_seconds=min_flight_seconds
+    )
+    lowest = np.min(np.asarray(trajectory.points, float)[1:, :, 2], axis=1)
+    figures = {
+        **travel,
+        "airborne_phases": float(len(phases)),
+        "max_clearance_body_lengths": float(lowest.max()) / float(body_length),
+    }
     criteria = {
         **far,
-        f"airborne in >= {min_airborne_phases} phases (got {phases})": phases
+        f"flies (every point >= {clearance:g} body lengths up for >= {min_flight_seconds:g} s) "
+        f"in >= {min_airborne_phases} phases (got {len(phases)})": len(phases)
         >= min_airborne_phases,
     }
     return _result("bound", t["finite"], figures, criteria)
@@ -303,20 +355,28 @@ def jump(
     body_length: float,
     min_clearance_lengths: float = 0.25,
     max_landing_tilt_degrees: float = 30.0,
+    min_flight_seconds: float = FLIGHT_SECONDS,
 ) -> CheckResult:
     """A jump (the second paper's Table 4 jump phase, Figures 13 and 14): leaves the floor
     entirely, high, and lands upright.
 
-    Passes when at some saved instant every point is at least `min_clearance_lengths` body
-    lengths above the floor (the highest height all points clear at once,
-    `max_t min_i z_i(t)`, the paper's jump measure), and at the end some point touches the
-    floor with the body's up axis within `max_landing_tilt_degrees` of vertical.
+    Passes when the body flies with every point at least `min_clearance_lengths` body
+    lengths above the floor for at least `min_flight_seconds` (`flights`; the highest height
+    all points clear at once, `max_t min_i z_i(t)`, is the paper's jump measure), and at
+    the end some point touches the floor with the body's up axis within
+    `max_landing_tilt_degrees` of vertical.
     """
     t = _single(trajectory, "jump")
     body_length = _positive("body_length", body_length)
     points = np.asarray(trajectory.points, float)
     clearance = float(np.max(np.min(points[:, :, 2], axis=1)))
     lengths = clearance / body_length
+    high = flights(
+        trajectory,
+        body_length=body_length,
+        clearance=min_clearance_lengths,
+        min_seconds=min_flight_seconds,
+    )
     tilt = float(_tilt_degrees(t["frame"][-1:])[0])
     landed = bool(np.any(t["contact"][-1]))
     figures = {
@@ -326,8 +386,8 @@ def jump(
         "on_floor_at_end": float(landed),
     }
     criteria = {
-        f"every point clears the floor by >= {min_clearance_lengths:g} body lengths at once "
-        f"(got {lengths:.2f})": lengths >= min_clearance_lengths,
+        f"every point clears the floor by >= {min_clearance_lengths:g} body lengths for "
+        f">= {min_flight_seconds:g} s (highest clearance {lengths:.2f})": bool(high),
         f"lands: a point on the floor at the end (got {landed})": landed,
         f"upright at the end, within {max_landing_tilt_degrees:g} degrees (got {tilt:.1f})": tilt
         <= max_landing_tilt_degrees,

@@ -5,7 +5,10 @@
 from ._checks import CHECKS as CHECKS
 from ._checks import CheckResult as CheckResult
 from ._checks import bound as bound
+from ._checks import FLIGHT_CLEARANCE as FLIGHT_CLEARANCE
+from ._checks import FLIGHT_SECONDS as FLIGHT_SECONDS
 from ._checks import cartwheel as cartwheel
+from ._checks import flights as flights
 from ._checks import jump as jump
 from ._checks import leap as leap
 from ._checks import pirouette as pirouette
@@ -17,8 +20,11 @@ from ._checks import walk as walk
 __all__ = [
     "CHECKS",
     "CheckResult",
+    "FLIGHT_CLEARANCE",
+    "FLIGHT_SECONDS",
     "bound",
     "cartwheel",
+    "flights",
     "jump",
     "leap",
     "pirouette",

@@ -126,6 +126,16 @@ def contact_time(trajectory: Trajectory) -> Float[Array, ""]:
     return jnp.sum(jnp.where(touching, _interval_lengths(trajectory), 0.0))
 
 
+@register_term("flight_time")
+def flight_time(trajectory: Trajectory, height: float = 0.05) -> Float[Array, ""]:
+    """Total time during which every point is at least `height` m above the floor (s):
+    visible flight, as the `leap`, `bound` and `jump` checks count it (`jaxmotion.checks.
+    flights`), where `contact_time` and `hops` also count skimming a few millimetres up.
+    Counted per save interval, by the heights at its end."""
+    lowest = jnp.min(trajectory.points[1:, :, 2], axis=-1)
+    return jnp.sum(jnp.where(lowest >= height, _interval_lengths(trajectory), 0.0))
+
+
 @register_term("hops")
 def hops(trajectory: Trajectory) -> Float[Array, ""]:
     """Number of times the body leaves the ground: saved samples where some point touched the
