@@ -112,6 +112,12 @@ def test_flight_time_counts_intervals_with_every_point_high_enough():
     skimming = make(np.stack([np.zeros(21), np.zeros(21), 0.5 + lift / 50], axis=1), duration=2.0)
     assert value("flight_time", skimming) == 0.0
     assert value("flight_time", skimming, height=0.001) == pytest.approx(1.0)
+    # air_height: the lowest point's mean height over the 20 instants after the start, 10 of
+    # them 0.1 m up (or 2 mm), the others resting on the floor.
+    assert value("air_height", hopping) == pytest.approx(0.05)
+    assert value("air_height", skimming) == pytest.approx(0.001)
+    sunk = make(np.stack([np.zeros(21), np.zeros(21), np.full(21, 0.49)], axis=1))
+    assert value("air_height", sunk) == 0.0  # pressed 1 cm into the floor: no flight
 
 
 def test_max_height():

@@ -136,6 +136,16 @@ def flight_time(trajectory: Trajectory, height: float = 0.05) -> Float[Array, ""
     return jnp.sum(jnp.where(lowest >= height, _interval_lengths(trajectory), 0.0))
 
 
+@register_term("air_height")
+def air_height(trajectory: Trajectory) -> Float[Array, ""]:
+    """Mean height of the lowest point above the floor over the saved instants after the
+    start, 0 while some point touches it (m): a smooth reward for leaving the floor, which
+    grows with every millimetre and every instant off it (`flight_time` counts only
+    flights above its height, so a search finds no slope toward them)."""
+    lowest = jnp.min(trajectory.points[1:, :, 2], axis=-1)
+    return jnp.mean(jnp.maximum(lowest, 0.0))
+
+
 @register_term("hops")
 def hops(trajectory: Trajectory) -> Float[Array, ""]:
     """Number of times the body leaves the ground: saved samples where some point touched the
