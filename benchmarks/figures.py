@@ -1,8 +1,8 @@
 """Throughput of `Task.evaluate` for articulated figures (the second paper's characters).
 
 A 1,000-step evaluation (T = 5 s at dt = 5 ms) of Star-Man, Cujo and Rex with random
-time-based BSR controllers (R = 4), and of Star-Man with random sense-based ones (R = 10, the
-paper's, over his 12 senses), at B = 1, 100 and 1000, on every CPU core (one JAX device per
+time-based BSR controllers (R = 4), and of Star-Man and Bob with random sense-based ones
+(R = 10, the paper's, over Star-Man's 12 senses and Bob's 40), at B = 1, 100 and 1000, on every CPU core (one JAX device per
 core), each in a fresh process so its compile time is its own.
 
     python benchmarks/figures.py            # the table, and benchmarks/figures.json
@@ -26,6 +26,7 @@ CASES = (
     ("star_man", "sense_bsr"),
     ("cujo", "time_bsr"),
     ("rex", "time_bsr"),
+    ("bob", "sense_bsr"),
 )
 PAPER_REX = 3.3  # evaluations/s, paper 004 (0.3 s per evaluation on a DEC 3000/400)
 DT, DURATION = 0.005, 5.0
@@ -118,6 +119,13 @@ def main() -> None:
             f"Star-Man sense_bsr / time_bsr at B = {b}: {ratio:.2f} (target >= 0.5); "
             f"compile {compile_s:.1f} s (target <= 5 s)"
         )
+    bob = next(r for r in results if r["figure"] == "bob")
+    top = bob["B"][str(batches[-1])]
+    worst = max(cell["compile_s"] for cell in bob["B"].values())
+    print(
+        f"Bob sense_bsr at B = {batches[-1]}: {top['evals_per_s']:.0f} evals/s (target >= 1,500 "
+        f"at B = 1000); compile, slowest batch size: {worst:.1f} s (target <= 10 s)"
+    )
     rex = next(r for r in results if r["figure"] == "rex")
     worst = max(cell["compile_s"] for cell in rex["B"].values())
     print(f"Rex compile, slowest batch size: {worst:.1f} s (target <= 10 s)")
