@@ -219,8 +219,9 @@ def test_jump_needs_every_point_clear_of_the_floor_at_once_and_an_upright_landin
     assert not still_up and still_up.figures["on_floor_at_end"] == 0.0
 
 
-def biped(duration=5.0, speed=0.8, stride=0.5, heading=lambda t: 0.0, com_z=lambda t: 1.0,
-          down=None):
+def biped(
+    duration=5.0, speed=0.8, stride=0.5, heading=lambda t: 0.0, com_z=lambda t: 1.0, down=None
+):
     """Three points, a left foot, a right foot and a head 1.7 m up (the standing height),
     walking along x at `speed` with the heading `heading(t)` (rad about z); by default each
     foot is down for 60% of every `stride` s, the right half a stride after the left."""
@@ -279,3 +280,72 @@ def test_walk_counts_a_chattering_foot_once():
     result = jm.checks.walk(biped(down=chatter), feet=FEET)
     assert result.passed, result.summary()
     assert result.figures["touch_downs"] > result.figures["steps"] == 20
+
+
+def turned(motion, degrees, start):
+    """`motion` turned about the vertical by `degrees` and moved so that its centre of mass
+    starts above `start` (x, y)."""
+    r = rot("z", math.radians(degrees))
+    com = np.asarray(motion.com) @ r.T
+    shift = np.array([start[0] - com[0, 0], start[1] - com[0, 1], 0.0])
+    points = np.asarray(motion.points) @ r.T + shift
+    frames = np.einsum("ij,tjk->tik", r, np.asarray(motion.frame))
+    return recorded(motion.ts, points, com + shift, frames, motion.contact)
+
+
+def walk_turn_walk(turn_degrees=90.0, turn_com_z=lambda t: 1.0, again_com_z=lambda t: 1.0):
+    """A walk along x, a steady turn of `turn_degrees` stepping in place, and a walk along
+    the new heading, each starting where the one before ended."""
+    walk = biped()
+    end = np.asarray(walk.com)[-1, :2]
+    rate = math.radians(turn_degrees) / 5.0
+    turn = turned(biped(speed=0.0, heading=lambda t: rate * t, com_z=turn_com_z), 0.0, end)
+    again = turned(biped(com_z=again_com_z), turn_degrees, end)
+    return [walk, turn, again]
+
+
+def test_walk_turn_walk_needs_two_walks_a_turn_and_no_fall():
+    result = jm.checks.walk_turn_walk(walk_turn_walk(), feet=FEET)
+    assert result.passed, result.summary()
+    assert result.figures["turn_degrees"] == pytest.approx(90.0, rel=1e-4)
+    # The second walk goes along its own start heading (90 degrees from the first's).
+    assert result.figures["stage_3_forward_heights"] == pytest.approx(4.0 / 1.7)
+    assert result.figures["stage_1_walk_passed"] == result.figures["stage_3_walk_passed"] == 1
+    assert list(result.criteria)[1:] == [
+        "stage 1 walks (the walk check passed)",
+        "stage 2 turns >= 45 degrees (got 90.0)",
+        "stage 3 walks (the walk check passed)",
+        "centre of mass never below 60% of its height at the start of stage 1 (min 100%, in "
+        "stage 1)",
+    ]
+    # Either way round.
+    assert jm.checks.walk_turn_walk(walk_turn_walk(turn_degrees=-60.0), feet=FEET)
+    # A turn of 30 degrees is too little.
+    small = jm.checks.walk_turn_walk(walk_turn_walk(turn_degrees=30.0), feet=FEET)
+    assert not small and small.criteria["stage 2 turns >= 45 degrees (got 30.0)"] is False
+    # Sinking to half the height while turning is a fall, though both walks pass.
+    sink = jm.checks.walk_turn_walk(walk_turn_walk(turn_com_z=lambda t: 1.0 - 0.1 * t), feet=FEET)
+    assert not sink and sink.figures["min_com_height_share"] == pytest.approx(0.5)
+    assert sink.figures["stage_1_walk_passed"] == sink.figures["stage_3_walk_passed"] == 1
+    assert "(min 50%, in stage 2)" in list(sink.criteria)[-1]
+    # A last walk at 55% of the first start's height passes its own walk check (it holds its
+    # own start height) but not the sequence's fall criterion.
+    low = jm.checks.walk_turn_walk(walk_turn_walk(again_com_z=lambda t: 0.55), feet=FEET)
+    assert not low and low.figures["stage_3_walk_passed"] == 1
+    assert low.figures["stage_3_min_com_height_share"] == 1.0  # the walk's, of its own start
+    assert low.figures["stage_3_min_com_height_share_of_stage_1"] == pytest.approx(0.55)
+
+
+def test_walk_turn_walk_reports_which_walk_failed():
+    walk, turn, _ = walk_turn_walk()
+    # The last "walk" stands still after the turn: its walk check fails, and says why.
+    still = turned(biped(speed=0.0), 90.0, np.asarray(turn.com)[-1, :2])
+    result = jm.checks.walk_turn_walk([walk, turn, still], feet=FEET)
+    assert not result and result.figures["stage_3_walk_passed"] == 0
+    failed = [text for text, ok in result.criteria.items() if not ok]
+    assert len(failed) == 1 and failed[0].startswith("stage 3 walks (the walk check failed: ")
+    assert "travels forward >= 1.5 standing heights (got 0.00)" in failed[0]
+    with pytest.raises(ValueError, match="walk_turn_walk checks 3 trajectories"):
+        jm.checks.walk_turn_walk([walk, turn], feet=FEET)
+    with pytest.raises(ValueError, match="walk_turn_walk needs the body's feet"):
+        jm.checks.walk_turn_walk([walk, turn, still], feet=())

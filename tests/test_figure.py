@@ -785,7 +785,7 @@ def test_rex_ankles_lift_the_toes_and_set_a_bent_leg_flat(x64):
         lo, hi = figure.ranges[ankle]
         assert lo < 0 == hi
         rest, lifted = _moved(figure, ankle, lo)
-        rise = lambda pose: pose[toe, 2] - pose[ankle_node, 2]
+        rise = lambda pose, toe=toe, ankle_node=ankle_node: pose[toe, 2] - pose[ankle_node, 2]
         assert rise(lifted) > rise(rest) + MOVE_TOL
         angles = np.asarray(figure.start_angles, dtype=float).copy()
         angles[knee], angles[ankle] = 0.5, -0.5

@@ -1,11 +1,13 @@
 """Reproduction checks: does a motion really leap, somersault, pirouette, shuffle,
-cartwheel, bound or jump?
+cartwheel, bound, jump or walk, and does a sequence walk, turn and walk again?
 
-Each check is a function of one (unbatched) `Trajectory` with documented thresholds, and
-returns a `CheckResult` that says which criteria held and what was measured. They encode the
-first paper's Figures 7-9 (the spider's leap, the poodle's somersault, the table's pirouette)
-and the second paper's Figures 9, 10, 13 and 15 (Star-Man's shuffle, cartwheel and jump,
-Cujo's bounding) as numbers a user can test their own results against.
+Each check is a function of one (unbatched) `Trajectory` with documented thresholds (a
+sequence check, `walk_turn_walk`, of the stages' trajectories in order), and returns a
+`CheckResult` that says which criteria held and what was measured. They encode the first
+paper's Figures 7-9 (the spider's leap, the poodle's somersault, the table's pirouette) and
+the second paper's Figures 9, 10 and 13-17 (Star-Man's shuffle, cartwheel and jump, Cujo's
+bounding, Rex's and Bob's walks) as numbers a user can test their own results against.
+Flight has one definition for all of them (`flights`).
 """
 
 import math
@@ -13,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._objective.terms import net_yaw, rotation, rotations
+from ._objective.terms import heading, net_yaw, rotation, rotations
 from ._sim.trajectory import Trajectory
 
 
@@ -497,6 +499,79 @@ def walk(
     return _result("walk", t["finite"], figures, criteria)
 
 
+def walk_turn_walk(
+    trajectories,
+    *,
+    feet,
+    min_turn_degrees: float = 45.0,
+    min_height_share: float = 0.6,
+    min_heights: float = 1.5,
+    max_heading_degrees: float = 30.0,
+    min_steps: int = 4,
+) -> CheckResult:
+    """Rex's seriatim walk, turn and walk (the second paper's section 4, Figure 16): three
+    motions, each starting where the one before ended.
+
+    Passes when the first and the last motion each pass the `walk` check (each on its own
+    trajectory: its own start heading and standing height; `min_heights`,
+    `max_heading_degrees` and `min_steps` are passed on), the middle one changes the heading
+    by at least `min_turn_degrees` either way (the `heading` objective term: the net turn of
+    the forward axis seen from above), and nobody falls: in every motion the centre of mass
+    stays at or above `min_height_share` of its height at the start of the first (which
+    also holds the walks' own fall criterion to the first start).
+
+    **Arguments:** the three trajectories in order (e.g. the stages of a multi-stage run);
+    `feet` (the body's feet, `Figure.feet`, as for `walk`); the thresholds.
+    """
+    parts = list(trajectories) if not isinstance(trajectories, Trajectory) else [trajectories]
+    if len(parts) != 3:
+        raise ValueError(
+            f"walk_turn_walk checks 3 trajectories (a walk, a turn, a walk); got {len(parts)}"
+        )
+    data = [_single(t, "walk_turn_walk") for t in parts]
+    feet = _feet(feet, np.shape(parts[0].points)[1], "walk_turn_walk")
+    walks = [
+        walk(
+            parts[i],
+            feet=feet,
+            min_heights=min_heights,
+            max_heading_degrees=max_heading_degrees,
+            min_height_share=min_height_share,
+            min_steps=min_steps,
+        )
+        for i in (0, 2)
+    ]
+    turn = math.degrees(float(heading(parts[1], absolute=True)))
+    start_height = float(data[0]["com"][0, 2])
+    start_height = _positive("the first motion's starting centre-of-mass height", start_height)
+    shares = [float(t["com"][:, 2].min()) / start_height for t in data]
+    lowest = int(np.argmin(shares))
+    figures = {
+        "turn_degrees": turn,
+        "min_com_height_share": shares[lowest],
+        **{f"stage_{i + 1}_min_com_height_share_of_stage_1": v for i, v in enumerate(shares)},
+    }
+    for number, result in zip((1, 3), walks, strict=True):
+        figures[f"stage_{number}_walk_passed"] = float(result.passed)
+        figures.update({f"stage_{number}_{k}": v for k, v in result.figures.items()})
+
+    def verdict(number: int, result: CheckResult) -> str:
+        if result.passed:
+            return f"stage {number} walks (the walk check passed)"
+        failed = "; ".join(text for text, ok in result.criteria.items() if not ok)
+        return f"stage {number} walks (the walk check failed: {failed})"
+
+    criteria = {
+        verdict(1, walks[0]): walks[0].passed,
+        f"stage 2 turns >= {min_turn_degrees:g} degrees (got {turn:.1f})": turn >= min_turn_degrees,
+        verdict(3, walks[1]): walks[1].passed,
+        f"centre of mass never below {100 * min_height_share:g}% of its height at the start "
+        f"of stage 1 (min {100 * shares[lowest]:.0f}%, in stage {lowest + 1})": shares[lowest]
+        >= min_height_share,
+    }
+    return _result("walk_turn_walk", all(t["finite"] for t in data), figures, criteria)
+
+
 CHECKS = {
     "leap": leap,
     "somersault": somersault,
@@ -506,4 +581,5 @@ CHECKS = {
     "bound": bound,
     "jump": jump,
     "walk": walk,
+    "walk_turn_walk": walk_turn_walk,
 }

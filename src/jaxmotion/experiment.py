@@ -1,4 +1,5 @@
-"""Experiments from TOML configs: load, run, and read back results folders.
+"""Experiments from TOML configs: load, run, and read back results folders; multi-stage
+(seriatim) experiments, each stage starting where the previous stage's best motion ended.
 
 This is the config/IO layer (the library core never touches disk); `python -m jaxmotion`
 is built on it.
@@ -9,23 +10,33 @@ from ._cli.config import Experiment as Experiment
 from ._cli.config import default_config_path as default_config_path
 from ._cli.config import load_config as load_config
 from ._cli.config import parse_config as parse_config
+from ._cli.results import concatenate_trajectories as concatenate_trajectories
 from ._cli.results import controller_from_dict as controller_from_dict
 from ._cli.results import controller_to_dict as controller_to_dict
 from ._cli.results import load_result as load_result
+from ._cli.results import load_stages as load_stages
 from ._cli.results import read_history_csv as read_history_csv
+from ._cli.results import replay_stages as replay_stages
 from ._cli.results import run_check as run_check
 from ._cli.results import run_experiment as run_experiment
+from ._cli.results import run_sequence_check as run_sequence_check
+from ._cli.results import start_where as start_where
 
 __all__ = [
     "ConfigError",
     "Experiment",
+    "concatenate_trajectories",
     "controller_from_dict",
     "controller_to_dict",
     "default_config_path",
     "load_config",
     "load_result",
+    "load_stages",
     "parse_config",
     "read_history_csv",
+    "replay_stages",
     "run_check",
     "run_experiment",
+    "run_sequence_check",
+    "start_where",
 ]

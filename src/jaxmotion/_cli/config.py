@@ -301,6 +301,19 @@ def search_evaluations(search: Mapping[str, Any]) -> int:
     return search["size"] + search["evaluations"]
 
 
+def search_plan(search: Mapping[str, Any]) -> str:
+    """A checked [search] section in words, e.g. "serial search, 10 climbers x 1000
+    generations x 1 runs, reseeding every 200"."""
+    if search["algorithm"] == "serial_search":
+        return (
+            f"serial search, {search['climbers']} climbers x {search['generations']} "
+            f"generations x {search['runs']} runs, reseeding every {search['reseed_every']}"
+        )
+    return (
+        f"{search['evaluations']} evaluations, search set {search['size']}, batch {search['batch']}"
+    )
+
+
 OUTPUT = {
     "directory": Key("string", "results", lambda v: bool(v.strip()), "(not empty)"),
     "animation": Key("bool", True),
@@ -311,11 +324,30 @@ CHECK = {
     "motion": Key(
         "string",
         _REQUIRED,
-        lambda v: v
-        in ("leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound", "jump", "walk"),
-        '"leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound", "jump" or "walk"',
+        lambda v: (
+            v
+            in (
+                "leap",
+                "somersault",
+                "pirouette",
+                "shuffle",
+                "cartwheel",
+                "bound",
+                "jump",
+                "walk",
+                "walk_turn_walk",
+            )
+        ),
+        '"leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound", "jump", "walk" '
+        'or "walk_turn_walk" (a sequence of [[stage]]s)',
     ),
 }
+
+# Checks of a whole sequence of stages (they take the stages' trajectories in order) and
+# how many stages each needs.
+SEQUENCE_CHECKS = {"walk_turn_walk": 3}
+# Checks that need the body's feet.
+FOOT_CHECKS = ("walk", "walk_turn_walk")
 
 TOP = {
     "name": Key(
@@ -345,10 +377,22 @@ class Experiment:
 
     - `name`, `seed`: the run's label and the seed of its one PRNG key.
     - `config`: the resolved config (every key, defaults filled in), as written to results.
-    - `task`: the `Task` to search.
-    - `search`: the search settings (`algorithm`, `evaluations`, `size`, `batch`).
+    - `task`: the `Task` to search (a multi-stage experiment: the first stage's).
+    - `search`: the search settings (`algorithm`, `evaluations`, `size`, `batch`; a
+        multi-stage experiment: the first stage's).
     - `output`: where and what to write (`directory`, `animation`, `fps`).
-    - `check`: the motion check to run on the best controller (`jaxmotion.checks`), or None.
+    - `check`: the motion check to run on the best controller (`jaxmotion.checks`), or None;
+        a multi-stage experiment: the check of the whole sequence.
+    - `stages`: a multi-stage experiment's stages, in order (empty for a single search).
+
+    Each stage is itself a complete single-stage `Experiment` (its `name` is the stage's,
+    its `config` a single-stage config of its own tables merged over the top level's), so
+    the one search driver, check runner and results writer of a single search serve every
+    stage unchanged. Only its start differs, and that is known only once the previous
+    stage has run: each stage's `task` starts from the body's rest pose, and
+    `run_experiment` starts stage k from the final body state of stage k-1's best motion.
+    The stages' seeds are the experiment's `seed + i` for the i-th stage counting from 0
+    (modulo 2**32): the first stage searches with the experiment's own seed.
     """
 
     name: str
@@ -358,24 +402,50 @@ class Experiment:
     search: dict[str, Any] = field(default_factory=dict)
     output: dict[str, Any] = field(default_factory=dict)
     check: str | None = None
+    stages: tuple["Experiment", ...] = ()
 
 
 def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experiment:
     """Check a config (as read from TOML) and build its `Experiment`.
+
+    A config with an array of `[[stage]]` tables describes several searches solved one
+    after another (`Experiment.stages`; see `STAGE`).
 
     **Raises:** `ConfigError` (a `ValueError`) naming the first bad key, its value and what is
     allowed.
     """
     if not isinstance(raw, Mapping):
         raise ConfigError(f"a config must be a table; got {raw!r}")
-    top = {k: v for k, v in raw.items() if k not in SECTIONS}
+    if "stage" in raw:
+        return _parse_stages(raw, name)
+    return _parse_single(raw, name)
+
+
+def _top_level(raw: Mapping[str, Any], name: str) -> dict[str, Any]:
+    """The checked top-level keys (`name`, `seed`)."""
+    top = {k: v for k, v in raw.items() if k not in SECTIONS and k != "stage"}
     for k, v in top.items():
         if isinstance(v, Mapping) and k not in TOP:
             raise ConfigError(
                 f"unknown section [{k}]; allowed: {', '.join(f'[{s}]' for s in SECTIONS)}"
+                + (", [[stage]]" if "stage" in raw else "")
             )
     head = _read_section("the top level", top, TOP)
     head.setdefault("name", name)
+    return head
+
+
+def _check_needs(check_cfg: Mapping[str, Any], body, body_cfg: Mapping[str, Any]) -> None:
+    motion = check_cfg["motion"]
+    if motion in FOOT_CHECKS and len(getattr(body, "feet", ())) < 2:
+        raise ConfigError(
+            f'[check] motion = "{motion}" needs a body with feet (a left and a right one); '
+            f"{body_cfg.get('figure', body_cfg.get('lattice', 'this body'))!r} has none"
+        )
+
+
+def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
+    head = _top_level(raw, name)
     resolved: dict[str, Any] = dict(head)
 
     body_table = raw.get("body", {})
@@ -398,6 +468,13 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
     search_cfg = _read_section("[search]", search_table, _search_schema(search_table))
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
     check_cfg = _read_section("[check]", raw["check"], CHECK) if "check" in raw else None
+    if check_cfg is not None and check_cfg["motion"] in SEQUENCE_CHECKS:
+        motion = check_cfg["motion"]
+        raise ConfigError(
+            f'[check] motion = "{motion}" checks a sequence of '
+            f"{SEQUENCE_CHECKS[motion]} stages; allowed: only as the top-level [check] of a "
+            "config with that many [[stage]] tables"
+        )
 
     def build(section: str, make: Callable[[], Any]):
         try:
@@ -465,11 +542,7 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
     )
     if check_cfg is not None:
         resolved["check"] = check_cfg
-        if check_cfg["motion"] == "walk" and len(getattr(body, "feet", ())) < 2:
-            raise ConfigError(
-                f'[check] motion = "walk" needs a body with feet (a left and a right one); '
-                f"{body_cfg.get('figure', body_cfg.get('lattice', 'this body'))!r} has none"
-            )
+        _check_needs(check_cfg, body, body_cfg)
     return Experiment(
         name=head["name"],
         seed=head["seed"],
@@ -478,6 +551,150 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
         search=search_cfg,
         output=output_cfg,
         check=None if check_cfg is None else check_cfg["motion"],
+    )
+
+
+# ------------------------------------------------------------------------------- stages
+
+STAGE_SECTIONS = ("controller", "objective", "simulation", "search", "check")
+"""The tables a `[[stage]]` may hold; all but `check` are merged key by key over the
+top-level table of the same name."""
+
+STAGE = {
+    "name": Key(
+        "string",
+        _REQUIRED,
+        lambda v: v.isascii() and v.isidentifier(),
+        "that is an identifier (letters, digits and '_', not starting with a digit)",
+    ),
+}
+
+
+def _parse_stages(raw: Mapping[str, Any], name: str) -> Experiment:
+    """A multi-stage config: `[[stage]]` tables, each a search that starts where the
+    previous stage's best motion ended.
+
+    Each stage has a `name` (an identifier, unique) and may hold `[stage.controller]`,
+    `[stage.objective]`, `[stage.simulation]` and `[stage.search]` tables, each merged key by
+    key over the top-level table of the same name (shared settings are written once, at
+    the top level; a top-level table is optional when every stage has its own). Each
+    stage's merged tables go through exactly the checks of a single-stage config, and every
+    error names the stage. `[body]`, `[world]` and `[output]` are shared (top level only). A
+    stage's `[stage.check]` checks that stage's motion; the top-level `[check]` checks the
+    whole sequence: a sequence check (`walk_turn_walk`) on the stages' trajectories in
+    order, any other check on the stages' motions joined end to end. A stage runs one
+    search (`runs = 1`): independent runs of a sequence are runs with several seeds.
+
+    The resolved config keeps `[body]`, `[world]`, `[output]` and `[check]` at the top level
+    and spells out every stage's merged tables in full, so it parses to itself.
+    """
+    head = _top_level(raw, name)
+    stages_raw = raw["stage"]
+    if (
+        not isinstance(stages_raw, list)
+        or not stages_raw
+        or not all(isinstance(s, Mapping) for s in stages_raw)
+    ):
+        raise ConfigError(
+            f"stage = {stages_raw!r}; allowed: one or more [[stage]] tables (an array of "
+            "tables, each with a name)"
+        )
+    # The shared sections first, so their errors name no stage.
+    body_table = raw.get("body", {})
+    body_schema, _, _ = _body_schema(body_table)
+    body_cfg = _read_section("[body]", body_table, body_schema)
+    world_cfg = _read_section("[world]", raw.get("world", {}), WORLD)
+    output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
+    check_cfg = _read_section("[check]", raw["check"], CHECK) if "check" in raw else None
+
+    names: list[str] = []
+    stages: list[Experiment] = []
+    for i, table in enumerate(stages_raw, start=1):
+        where = f"[[stage]] {i}"
+        if "name" in table and isinstance(table["name"], str):
+            where += f' ("{table["name"]}")'
+        unknown = [k for k in table if k != "name" and k not in STAGE_SECTIONS]
+        if unknown:
+            raise ConfigError(
+                f"{where} has an unknown key {unknown[0]!r}; allowed: name, "
+                f"{', '.join(STAGE_SECTIONS)} ([body], [world] and [output] are shared: top "
+                "level only)"
+            )
+        stage_name = _read_section(
+            where, {"name": table.get("name")} if "name" in table else {}, STAGE
+        )["name"]
+        if stage_name in names:
+            raise ConfigError(
+                f"{where} name = {stage_name!r} is already stage {names.index(stage_name) + 1}'s;"
+                " allowed: a name no other stage has"
+            )
+        names.append(stage_name)
+        merged: dict[str, Any] = {
+            "name": stage_name,
+            "seed": (head["seed"] + i - 1) % 2**32,
+            "body": body_table,
+            "output": raw.get("output", {}),
+        }
+        if "world" in raw:
+            merged["world"] = raw["world"]
+        for section in STAGE_SECTIONS:
+            shared, own = raw.get(section), table.get(section)
+            if section == "check":  # the top-level [check] is the whole sequence's
+                shared = None
+            if isinstance(shared, Mapping) and isinstance(own, Mapping):
+                merged[section] = {**shared, **own}
+            elif own is not None:
+                merged[section] = own
+            elif shared is not None:
+                merged[section] = shared
+        for section, example in (
+            ("objective", "e.g. forward = 1.0"),
+            ("simulation", "duration = ... is required"),
+        ):
+            if section not in merged:
+                raise ConfigError(
+                    f"{where}: no [{section}] at the top level or in [stage.{section}] ({example})"
+                )
+        try:
+            stage = _parse_single(merged, stage_name)
+        except ConfigError as e:
+            raise ConfigError(f"{where}: {e}") from None
+        runs = stage.search.get("runs", 1)
+        if runs > 1:
+            raise ConfigError(
+                f"{where}: [search] runs = {runs}; allowed: runs = 1 (a multi-stage config "
+                "runs one search per stage, each starting where the previous stage's best "
+                "motion ended; for independent runs of the sequence, run the config with "
+                "several --seed)"
+            )
+        stages.append(stage)
+
+    resolved: dict[str, Any] = dict(head)
+    resolved.update(body=body_cfg, world=world_cfg, output=output_cfg)
+    if check_cfg is not None:
+        motion = check_cfg["motion"]
+        needed = SEQUENCE_CHECKS.get(motion)
+        if needed is not None and needed != len(stages):
+            raise ConfigError(
+                f'[check] motion = "{motion}" checks a sequence of {needed} stages; this '
+                f"config has {len(stages)} [[stage]] table{'s' if len(stages) != 1 else ''}"
+            )
+        _check_needs(check_cfg, stages[0].task.body, body_cfg)
+        resolved["check"] = check_cfg
+    resolved["stage"] = [
+        {"name": s.name, **{k: s.config[k] for k in STAGE_SECTIONS if k in s.config}}
+        for s in stages
+    ]
+    first = stages[0]
+    return Experiment(
+        name=head["name"],
+        seed=head["seed"],
+        config=resolved,
+        task=first.task,
+        search=first.search,
+        output=output_cfg,
+        check=None if check_cfg is None else check_cfg["motion"],
+        stages=tuple(stages),
     )
 
 

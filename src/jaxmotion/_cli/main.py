@@ -18,6 +18,9 @@ jaxmotion: automatic motion synthesis for animated characters.
 
 A run writes a results folder: config.toml (resolved), best_controller.json, history.csv (one
 row per evaluation), learning_plot.png, motion.gif and summary.json. Fitness is maximised.
+A config with [[stage]] tables runs one search per stage, each starting where the previous
+stage's best motion ended; its folder holds a subfolder per stage (stage-1-NAME/, ...), the
+whole sequence's motion.gif and a summary.json of every stage.
 """
 
 
@@ -94,36 +97,58 @@ def _overrides(raw: dict, args) -> dict:
     if args.seed is not None:
         raw["seed"] = args.seed
     search = raw.setdefault("search", {})
+    stages = raw.get("stage")
+    if not isinstance(stages, list):
+        _override_search(search, args, "")
+        return raw
+    # A multi-stage config: the override applies to every stage's search (its own table
+    # merged over the top-level one), which then spells out its merged table.
+    if not any(getattr(args, k, None) is not None for k in ("evaluations", "batch", "runs")):
+        return raw
+    raw["stage"] = stages = [dict(s) if isinstance(s, dict) else s for s in stages]
+    for i, stage in enumerate(stages, start=1):
+        if not isinstance(stage, dict):
+            continue  # parse_config reports it
+        own = stage.get("search", {})
+        if not isinstance(search, dict) or not isinstance(own, dict):
+            continue
+        merged = {**search, **own}
+        name = stage.get("name")
+        _override_search(merged, args, f"[[stage]] {i}" + (f' ("{name}")' if name else "") + ": ")
+        stage["search"] = merged
+    return raw
+
+
+def _override_search(search, args, where: str) -> None:
+    """Apply --evaluations, --batch and --runs to one [search] table (`where`: which)."""
+    from .config import ConfigError
+
     serial = isinstance(search, dict) and search.get("algorithm") == "serial_search"
     if args.evaluations is not None:
         if serial:
             # Serial search counts generations: each evaluates every climber once.
-            from .config import ConfigError
-
             climbers = search.get("climbers", 10)
             if not isinstance(climbers, int) or isinstance(climbers, bool) or climbers < 1:
-                raise ConfigError(f"[search] climbers = {climbers!r}; allowed: an integer >= 1")
+                raise ConfigError(
+                    f"{where}[search] climbers = {climbers!r}; allowed: an integer >= 1"
+                )
             if args.evaluations < 1:
                 raise ConfigError(f"--evaluations = {args.evaluations}; allowed: >= 1")
             search["generations"] = max(1, -(-args.evaluations // climbers))
-        else:
+        elif isinstance(search, dict):
             search["evaluations"] = args.evaluations
     if args.batch is not None:
         if serial:
-            from .config import ConfigError
-
             raise ConfigError(
-                "--batch applies to parallel_hill_climb; serial_search evaluates all its "
-                "climbers (and runs) in one batch"
+                f"{where}--batch applies to parallel_hill_climb; serial_search evaluates all "
+                "its climbers (and runs) in one batch"
             )
-        search["batch"] = args.batch
+        if isinstance(search, dict):
+            search["batch"] = args.batch
     if getattr(args, "runs", None) is not None:
         if not serial:
-            from .config import ConfigError
-
-            raise ConfigError('--runs applies to [search] algorithm = "serial_search"')
+            raise ConfigError(f'{where}--runs applies to [search] algorithm = "serial_search"')
         search["runs"] = args.runs
-    return raw
 
 
 def _load(path: Path, args):
@@ -146,24 +171,35 @@ def _load(path: Path, args):
 
 def _run(path: Path, args) -> int:
     experiment = _load(path, args)
+    from .config import search_plan
     from .results import run_experiment
 
-    if not args.quiet:
-        s = experiment.search
-        if s["algorithm"] == "serial_search":
-            plan = (
-                f"serial search, {s['climbers']} climbers x {s['generations']} generations"
-                f" x {s['runs']} runs, reseeding every {s['reseed_every']}"
-            )
+    say = None if args.quiet else (lambda line: print(line, file=sys.stderr))
+    if say is not None:
+        if experiment.stages:
+            names = ", ".join(s.name for s in experiment.stages)
+            plan = f"{len(experiment.stages)} stages ({names}), one search each"
         else:
-            plan = f"{s['evaluations']} evaluations, search set {s['size']}, batch {s['batch']}"
-        print(f"jaxmotion: {experiment.name}: {plan}, seed {experiment.seed}", file=sys.stderr)
+            plan = search_plan(experiment.search)
+        say(f"jaxmotion: {experiment.name}: {plan}, seed {experiment.seed}")
     folder = run_experiment(
         experiment,
         directory=args.out,
         progress=not args.quiet,
         animation=False if args.no_animation else None,
+        report=say,
     )
+    if experiment.stages:
+        if say is not None:
+            summary = json.loads((folder / "summary.json").read_text())
+            say(
+                f"{len(summary['stages'])} stages, {summary['evaluations']} evaluations in "
+                f"{summary['wall_time_s']:.1f} s"
+            )
+            if summary.get("check"):
+                say(_check_lines(summary["check"]))
+        print(folder)
+        return 0
     if not args.quiet:
         summary = json.loads((folder / "summary.json").read_text())
         speed = summary.get("steady_evals_per_s")
@@ -182,12 +218,7 @@ def _run(path: Path, args) -> int:
             file=sys.stderr,
         )
         if summary.get("check"):
-            check = summary["check"]
-            lines = [
-                f"  {'pass' if ok else 'FAIL'}  {text}" for text, ok in check["criteria"].items()
-            ]
-            verdict = "passed" if check["passed"] else "failed"
-            print(f"{check['name']} check {verdict}:\n" + "\n".join(lines), file=sys.stderr)
+            print(_check_lines(summary["check"]), file=sys.stderr)
         if summary.get("runs"):
             checked = [r for r in summary["runs"] if r["check"] is not None]
             fits = ", ".join(f"{r['best_fitness']:.4g}" for r in summary["runs"])
@@ -200,9 +231,69 @@ def _run(path: Path, args) -> int:
     return 0
 
 
+def _check_lines(check: dict) -> str:
+    """A check's verdict and its criteria, one a line."""
+    lines = [f"  {'pass' if ok else 'FAIL'}  {text}" for text, ok in check["criteria"].items()]
+    verdict = "passed" if check["passed"] else "failed"
+    return f"{check['name']} check {verdict}:\n" + "\n".join(lines)
+
+
+def _replay_stages(args) -> int:
+    from .results import (
+        concatenate_trajectories,
+        fitness_of,
+        load_stages,
+        replay_stages,
+        run_check,
+        run_sequence_check,
+        start_where,
+    )
+
+    experiment, controllers = load_stages(args.results)
+    trajectories = replay_stages(experiment, controllers, solver=args.solver)
+    stages = []
+    for number, (stage, controller, trajectory) in enumerate(
+        zip(experiment.stages, controllers, trajectories, strict=True), start=1
+    ):
+        task = stage.task
+        if args.solver == "symplectic":
+            previous = trajectories[number - 2] if number > 1 else task.body.initial_state()
+            fitness = fitness_of(start_where(stage, previous).task, controller)
+        else:
+            fitness = float(task.objective(trajectory))
+        entry = {
+            "stage": number,
+            "name": stage.name,
+            "fitness": fitness,
+            "terms": {k: float(v) for k, v in task.objective.values(trajectory).items()},
+            "finite": bool(trajectory.finite),
+        }
+        check = run_check(stage, trajectory)
+        if check is not None:
+            entry["check"] = check.to_dict()
+        stages.append(entry)
+    report = {"stages": stages, "solver": args.solver}
+    check = run_sequence_check(experiment, trajectories)
+    if check is not None:
+        report["check"] = check.to_dict()
+    print(json.dumps(report, indent=2))
+    if args.gif:
+        from ..viz import animate
+
+        whole = concatenate_trajectories(trajectories)
+        animate(whole, experiment.task.body, fps=experiment.output["fps"]).save(args.gif)
+        print(args.gif)
+    return 0
+
+
 def _replay(args) -> int:
+    import tomllib
+
     from .results import load_result
 
+    with (Path(args.results) / "config.toml").open("rb") as f:
+        if "stage" in tomllib.load(f):
+            return _replay_stages(args)
     experiment, controller = load_result(args.results)
     task = experiment.task
     trajectory = task.simulate(controller, solver=args.solver)
@@ -247,6 +338,11 @@ def _compare(args) -> int:
         Path(args.config),
         argparse.Namespace(seed=None, evaluations=args.evaluations, batch=args.batch),
     )
+    if experiment.stages:
+        raise ConfigError(
+            f"{args.config}: compare runs one search; this config has "
+            f"{len(experiment.stages)} [[stage]] tables"
+        )
     if experiment.search["algorithm"] != "parallel_hill_climb":
         raise ConfigError(
             f"{args.config}: compare runs parallel_hill_climb with and without refinement; "
@@ -287,10 +383,10 @@ def main(argv: list[str] | None = None) -> int:
             experiment = _load(
                 Path(args.config), argparse.Namespace(seed=None, evaluations=None, batch=None)
             )
-            print(
-                f"{args.config}: ok ({experiment.name}: "
-                f"{search_evaluations(experiment.search)} evaluations)"
-            )
+            parts = experiment.stages or (experiment,)
+            total = sum(search_evaluations(s.search) for s in parts)
+            stages = f"{len(parts)} stages, " if experiment.stages else ""
+            print(f"{args.config}: ok ({experiment.name}: {stages}{total} evaluations)")
             return 0
         if args.command == "compare":
             return _compare(args)

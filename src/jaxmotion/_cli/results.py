@@ -9,6 +9,7 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,7 @@ import jax.random as jr
 import numpy as np
 import tomli_w
 
+from .._body.base import BodyState
 from .._control.base import AbstractController
 from .._control.regimes import Regimes
 from .._control.sense_bsr import SenseBSR
@@ -25,7 +27,9 @@ from .._control.time_bsr import TimeBSR
 from .._search.hill_climb import SearchResult, parallel_hill_climb
 from .._search.history import History
 from .._search.serial import serial_search
-from .config import ConfigError, Experiment, parse_config
+from .._sim.trajectory import Trajectory
+from .._task import Task
+from .config import SEQUENCE_CHECKS, ConfigError, Experiment, parse_config, search_plan
 
 CONTROLLER_FAMILIES: dict[str, type[AbstractController]] = {
     "regimes": Regimes,
@@ -149,6 +153,7 @@ def run_experiment(
     directory: str | Path | None = None,
     progress: bool = True,
     animation: bool | None = None,
+    report: Callable[[str], None] | None = None,
 ) -> Path:
     """Run an experiment's search and write its results folder; return the folder.
 
@@ -157,9 +162,17 @@ def run_experiment(
     `motion.gif` (unless `animation` is off) and `summary.json`. It is assembled in a hidden
     temporary folder and renamed into place only when complete, so a failed or interrupted
     run leaves nothing half-written behind.
-    """
-    from ..viz import animate, learning_plot
 
+    A multi-stage experiment (`Experiment.stages`) runs one search per stage, in order,
+    stage k starting from the final body state of stage k-1's best motion (`start_where`;
+    its controller starts from its own initial state at its own time 0), with the stage's
+    own seed (the experiment's seed + i for the i-th stage from 0). The folder then holds
+    `config.toml` (resolved), one subfolder per stage (`stage-1-<name>/`, ...) with what a
+    single search's folder holds but the config, `summary.json` (every stage's best
+    fitness, terms, check and wall time, and the check of the whole sequence) and
+    `motion.gif` of the whole sequence (`concatenate_trajectories`). `report` is called with
+    a short line as each stage starts and ends (the CLI prints them).
+    """
     out_root = Path(directory if directory is not None else experiment.output["directory"])
     want_animation = experiment.output["animation"] if animation is None else animation
     out_root.mkdir(parents=True, exist_ok=True)
@@ -171,78 +184,310 @@ def run_experiment(
         final = out_root / f"{experiment.name}-{stamp}-{n}"
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=out_root))
     try:
-        started = time.perf_counter()
-        result, timing = _run_search(experiment, progress)
-        search_seconds = timing["search_time_s"]
-        task = experiment.task
-        best = result.best
-        runs = getattr(result, "runs", (result,))
-        evaluations = sum(len(r.history) for r in runs)
-        # Every run's best replayed with the search's own settings, so its terms are what the
-        # search scored; the overall best is the best run's (serial search's `runs`).
-        replays = [task.simulate(r.best) for r in runs]
-        trajectory = replays[int(np.argmax([r.best_fitness for r in runs]))]
-        values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
-        check = run_check(experiment, trajectory)
-        replay_fitness = fitness_of(task, best)
-        per_run = None
-        if len(runs) > 1:
-            # Independent runs: each one's best, replayed and checked.
-            per_run = []
-            for i, (r, replay) in enumerate(zip(runs, replays, strict=True)):
-                verdict = run_check(experiment, replay)
-                per_run.append(
-                    {
-                        "run": i,
-                        "best_fitness": _json_number(r.best_fitness),
-                        "terms": {
-                            k: _json_number(float(v))
-                            for k, v in task.objective.values(replay).items()
-                        },
-                        "check": None if verdict is None else verdict.to_dict(),
-                    }
-                )
-
-        (tmp / "config.toml").write_text(tomli_w.dumps(experiment.config))
-        saved = controller_to_dict(best, task.space.family)
-        saved.update(
-            fitness=_json_number(result.best_fitness),
-            format=FORMAT_VERSION,
-            config="config.toml",
-        )
-        _write_json(tmp / "best_controller.json", saved)
-        write_history_csv(tmp / "history.csv", result.history)
-        fig = learning_plot(result.history, title=f"{experiment.name}: learning plot")
-        fig.savefig(tmp / "learning_plot.png", dpi=120)
-        if want_animation:
-            animate(trajectory, task.body, fps=experiment.output["fps"]).save(tmp / "motion.gif")
-        summary = {
-            "name": experiment.name,
-            "seed": experiment.seed,
-            "best_fitness": _json_number(result.best_fitness),
-            "replay_fitness": _json_number(replay_fitness),
-            "terms": {k: _json_number(v) for k, v in values.items()},
-            "evaluations": evaluations,
-            "nonfinite_evaluations": sum(r.history.num_nonfinite for r in runs),
-            "wall_time_s": round(time.perf_counter() - started, 3),
-            "search_time_s": round(search_seconds, 3),
-            "evals_per_s": round(evaluations / search_seconds, 1),
-            "compile_and_first_steps_s": round(timing["first_steps_s"], 3),
-            "steady_evals_per_s": round(timing.get("steady_evals_per_s", float("nan")), 1)
-            if "steady_evals_per_s" in timing
-            else None,
-            "check": None if check is None else check.to_dict(),
-            "runs": per_run,
-            "devices": len(jax.devices()),
-            "float": str(jnp.result_type(float)),
-            "jax": jax.__version__,
-        }
-        _write_json(tmp / "summary.json", summary)
+        if experiment.stages:
+            _run_stages(experiment, tmp, progress, want_animation, report)
+        else:
+            started = time.perf_counter()
+            _search_and_write(experiment, tmp, progress, want_animation, started)
+            (tmp / "config.toml").write_text(tomli_w.dumps(experiment.config))
         os.replace(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+def _search_and_write(
+    experiment: Experiment,
+    folder: Path,
+    progress: bool,
+    want_animation: bool,
+    started: float,
+    *,
+    stage: dict[str, Any] | None = None,
+) -> tuple[dict[str, Any], Trajectory]:
+    """Search one (single-stage) experiment and write what its results folder holds but the
+    config: `best_controller.json`, `history.csv`, `learning_plot.png`, `motion.gif` and
+    `summary.json` (`stage`: a stage's place in its sequence, added to both JSON files).
+    Returns the summary and the best motion."""
+    from ..viz import animate, learning_plot
+
+    result, timing = _run_search(experiment, progress)
+    search_seconds = timing["search_time_s"]
+    task = experiment.task
+    best = result.best
+    runs = getattr(result, "runs", (result,))
+    evaluations = sum(len(r.history) for r in runs)
+    # Every run's best replayed with the search's own settings, so its terms are what the
+    # search scored; the overall best is the best run's (serial search's `runs`).
+    replays = [task.simulate(r.best) for r in runs]
+    trajectory = replays[int(np.argmax([r.best_fitness for r in runs]))]
+    values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
+    check = run_check(experiment, trajectory)
+    replay_fitness = fitness_of(task, best)
+    per_run = None
+    if len(runs) > 1:
+        # Independent runs: each one's best, replayed and checked.
+        per_run = []
+        for i, (r, replay) in enumerate(zip(runs, replays, strict=True)):
+            verdict = run_check(experiment, replay)
+            per_run.append(
+                {
+                    "run": i,
+                    "best_fitness": _json_number(r.best_fitness),
+                    "terms": {
+                        k: _json_number(float(v)) for k, v in task.objective.values(replay).items()
+                    },
+                    "check": None if verdict is None else verdict.to_dict(),
+                }
+            )
+
+    saved = controller_to_dict(best, task.space.family)
+    saved.update(
+        fitness=_json_number(result.best_fitness),
+        format=FORMAT_VERSION,
+        config="config.toml" if stage is None else "../config.toml",
+    )
+    if stage is not None:
+        saved["stage"] = stage["stage"]
+    _write_json(folder / "best_controller.json", saved)
+    write_history_csv(folder / "history.csv", result.history)
+    fig = learning_plot(result.history, title=f"{experiment.name}: learning plot")
+    fig.savefig(folder / "learning_plot.png", dpi=120)
+    if want_animation:
+        animate(trajectory, task.body, fps=experiment.output["fps"]).save(folder / "motion.gif")
+    summary = {
+        "name": experiment.name,
+        "seed": experiment.seed,
+        **(stage or {}),
+        "best_fitness": _json_number(result.best_fitness),
+        "replay_fitness": _json_number(replay_fitness),
+        "terms": {k: _json_number(v) for k, v in values.items()},
+        "evaluations": evaluations,
+        "nonfinite_evaluations": sum(r.history.num_nonfinite for r in runs),
+        "wall_time_s": round(time.perf_counter() - started, 3),
+        "search_time_s": round(search_seconds, 3),
+        "evals_per_s": round(evaluations / search_seconds, 1),
+        "compile_and_first_steps_s": round(timing["first_steps_s"], 3),
+        "steady_evals_per_s": round(timing.get("steady_evals_per_s", float("nan")), 1)
+        if "steady_evals_per_s" in timing
+        else None,
+        "check": None if check is None else check.to_dict(),
+        "runs": per_run,
+        "devices": len(jax.devices()),
+        "float": str(jnp.result_type(float)),
+        "jax": jax.__version__,
+    }
+    _write_json(folder / "summary.json", summary)
+    return summary, trajectory
+
+
+def stage_folder(number: int, name: str) -> str:
+    """The subfolder of a multi-stage results folder holding stage `number` (from 1)."""
+    return f"stage-{number}-{name}"
+
+
+def start_where(stage: Experiment, previous: Trajectory | BodyState | None) -> Experiment:
+    """`stage` with its task starting from the final body state of `previous` (or from a
+    given body state; None: from the body's rest pose, as configured). Only the body's
+    state carries over: the stage's controllers start from their own initial state at their
+    own time 0, so the stage's first saved sample is `previous`'s last one."""
+    if previous is None:
+        return stage
+    if isinstance(previous, Trajectory):
+        if previous.final is None:
+            raise ValueError(
+                "start_where needs a trajectory with its final state (Trajectory.final)"
+            )
+        previous = previous.final.body
+    # A copy of the values alone (bitwise): a state that comes out of a sharded call keeps
+    # its sharding, and a task holding it would compile its simulations again.
+    previous = jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)), previous)
+    task = stage.task
+    started = Task(
+        task.body,
+        task.world,
+        task.space,
+        task.objective,
+        task.duration,
+        dt=task.dt,
+        save_dt=task.save_dt,
+        control_dt=task.control_dt,
+        initial_state=previous,
+    )
+    return dataclasses.replace(stage, task=started)
+
+
+def _run_stages(
+    experiment: Experiment,
+    folder: Path,
+    progress: bool,
+    want_animation: bool,
+    report: Callable[[str], None] | None,
+) -> None:
+    """A multi-stage experiment's searches, one after another (see `run_experiment`)."""
+    from ..viz import animate
+
+    say = report or (lambda line: None)
+    started = time.perf_counter()
+    count = len(experiment.stages)
+    trajectories: list[Trajectory] = []
+    summaries: list[dict[str, Any]] = []
+    previous_name = None
+    for number, stage in enumerate(experiment.stages, start=1):
+        if trajectories:
+            stage = start_where(stage, trajectories[-1])
+        else:
+            # The rest pose, given explicitly: every stage's task then has the same layout,
+            # so stages of the same objective share their compiled simulations.
+            stage = start_where(stage, stage.task.body.initial_state())
+        label = f"stage {number}/{count} {stage.name}"
+        start = "" if previous_name is None else f", starting where {previous_name} ended"
+        say(f"{label}: {search_plan(stage.search)}, seed {stage.seed}{start}")
+        sub = folder / stage_folder(number, stage.name)
+        sub.mkdir()
+        summary, trajectory = _search_and_write(
+            stage,
+            sub,
+            progress,
+            want_animation,
+            time.perf_counter(),
+            stage={"stage": number, "starts_after": previous_name},
+        )
+        check = summary["check"]
+        verdict = (
+            ""
+            if check is None
+            else f"; {check['name']} check " + ("passed" if check["passed"] else "failed")
+        )
+        terms = ", ".join(f"{k} {_short(v)}" for k, v in summary["terms"].items())
+        say(
+            f"{label}: best fitness {_short(summary['best_fitness'])} ({terms}) after "
+            f"{summary['evaluations']} evaluations in {summary['wall_time_s']:.1f} s{verdict}"
+        )
+        trajectories.append(trajectory)
+        previous_name = stage.name
+        summaries.append(
+            {
+                "stage": number,
+                "name": stage.name,
+                "folder": sub.name,
+                "seed": stage.seed,
+                **{
+                    k: summary[k]
+                    for k in (
+                        "best_fitness",
+                        "replay_fitness",
+                        "terms",
+                        "check",
+                        "evaluations",
+                        "wall_time_s",
+                        "search_time_s",
+                    )
+                },
+            }
+        )
+    check = run_sequence_check(experiment, trajectories)
+    if want_animation:
+        whole = concatenate_trajectories(trajectories)
+        animate(whole, experiment.task.body, fps=experiment.output["fps"]).save(
+            folder / "motion.gif"
+        )
+    (folder / "config.toml").write_text(tomli_w.dumps(experiment.config))
+    _write_json(
+        folder / "summary.json",
+        {
+            "name": experiment.name,
+            "seed": experiment.seed,
+            "stages": summaries,
+            "check": None if check is None else check.to_dict(),
+            "evaluations": sum(s["evaluations"] for s in summaries),
+            "duration_s": float(sum(s.task.duration for s in experiment.stages)),
+            "wall_time_s": round(time.perf_counter() - started, 3),
+            "devices": len(jax.devices()),
+            "float": str(jnp.result_type(float)),
+            "jax": jax.__version__,
+        },
+    )
+
+
+def _short(value: float | str) -> str:
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
+def concatenate_trajectories(trajectories: Sequence[Trajectory]) -> Trajectory:
+    """One motion of several performed one after another (the stages of a multi-stage
+    run): each later trajectory's times shifted by the durations of those before it, and
+    its first sample dropped (it repeats the previous trajectory's last one when it started
+    from that one's final state, `start_where`).
+
+    **Arguments:** one or more unbatched trajectories of the same body.
+
+    **Returns:** a `Trajectory`: finite when every part is, `final` the last part's,
+    `senses` joined when every part has them (else None).
+
+    **Raises:** `ValueError` for no trajectories, a batched one, or parts of different
+    bodies.
+    """
+    parts = list(trajectories)
+    if not parts:
+        raise ValueError("concatenate_trajectories needs at least one trajectory")
+    for i, part in enumerate(parts):
+        if not isinstance(part, Trajectory) or np.ndim(part.com) != 2:
+            raise ValueError(
+                f"concatenate_trajectories joins unbatched Trajectory objects; part {i} is "
+                f"{'batched' if isinstance(part, Trajectory) else type(part).__name__}"
+            )
+        if np.shape(part.points)[1:] != np.shape(parts[0].points)[1:]:
+            raise ValueError(
+                f"concatenate_trajectories: part {i} has points of shape "
+                f"{np.shape(part.points)[1:]}, part 0 {np.shape(parts[0].points)[1:]} (one body)"
+            )
+    ts, offset = [parts[0].ts], parts[0].ts[-1]
+    for part in parts[1:]:
+        ts.append(part.ts[1:] - part.ts[0] + offset)
+        offset = offset + part.ts[-1] - part.ts[0]
+
+    def join(name):
+        leaves = [getattr(p, name) for p in parts]
+        return jnp.concatenate([leaves[0], *(leaf[1:] for leaf in leaves[1:])])
+
+    sensed = all(p.senses is not None for p in parts)
+    return Trajectory(
+        ts=jnp.concatenate(ts),
+        points=join("points"),
+        com=join("com"),
+        frame=join("frame"),
+        contact=join("contact"),
+        finite=jnp.all(jnp.stack([jnp.asarray(p.finite) for p in parts])),
+        final=parts[-1].final,
+        senses=join("senses") if sensed else None,
+    )
+
+
+def replay_stages(
+    experiment: Experiment,
+    controllers: Sequence[AbstractController],
+    *,
+    solver: str = "symplectic",
+) -> list[Trajectory]:
+    """Re-simulate a multi-stage experiment's stages with these controllers, one per stage,
+    each starting where the previous one's motion ended (`start_where`). With the search's
+    own solver every stage replays bitwise as the run computed it.
+
+    **Raises:** `ValueError` if the number of controllers is not the number of stages.
+    """
+    if len(controllers) != len(experiment.stages):
+        raise ValueError(
+            f"replay_stages needs one controller per stage ({len(experiment.stages)}); got "
+            f"{len(controllers)}"
+        )
+    trajectories: list[Trajectory] = []
+    for stage, controller in zip(experiment.stages, controllers, strict=True):
+        previous = trajectories[-1] if trajectories else stage.task.body.initial_state()
+        stage = start_where(stage, previous)
+        trajectories.append(stage.task.simulate(controller, solver=solver))
+    return trajectories
 
 
 def fitness_of(task, controller) -> float:
@@ -253,15 +498,11 @@ def fitness_of(task, controller) -> float:
     return float(task.evaluate(one)[0])
 
 
-def run_check(experiment: Experiment, trajectory):
-    """The experiment's motion check on a trajectory of its task (None if it has none)."""
-    if experiment.check is None:
-        return None
+def _check_arguments(experiment: Experiment, check) -> dict[str, Any]:
+    """What a check function takes of the experiment's task: `body_length`, `period`,
+    `feet`."""
     import inspect
 
-    from .._checks import CHECKS
-
-    check = CHECKS[experiment.check]
     task = experiment.task
     available = {"body_length": float(task.body.body_length)}
     if hasattr(task.space, "t_per"):
@@ -269,23 +510,76 @@ def run_check(experiment: Experiment, trajectory):
     if getattr(task.body, "feet", ()):
         available["feet"] = task.body.feet
     wanted = inspect.signature(check).parameters
-    return check(trajectory, **{k: v for k, v in available.items() if k in wanted})
+    return {k: v for k, v in available.items() if k in wanted}
+
+
+def run_check(experiment: Experiment, trajectory):
+    """The experiment's motion check on a trajectory of its task (None if it has none)."""
+    if experiment.check is None:
+        return None
+    from .._checks import CHECKS
+
+    check = CHECKS[experiment.check]
+    return check(trajectory, **_check_arguments(experiment, check))
+
+
+def run_sequence_check(experiment: Experiment, trajectories: Sequence[Trajectory]):
+    """A multi-stage experiment's check of the whole sequence (None if it has none): a
+    sequence check (`walk_turn_walk`) on the stages' trajectories in order, any other check
+    on them joined end to end (`concatenate_trajectories`)."""
+    if experiment.check is None:
+        return None
+    if experiment.check in SEQUENCE_CHECKS:
+        from .._checks import CHECKS
+
+        check = CHECKS[experiment.check]
+        return check(list(trajectories), **_check_arguments(experiment, check))
+    return run_check(experiment, concatenate_trajectories(trajectories))
+
+
+def _read_config(folder: Path) -> Experiment:
+    import tomllib
+
+    with (folder / "config.toml").open("rb") as f:
+        raw = tomllib.load(f)
+    try:
+        return parse_config(raw, name=raw.get("name", folder.name))
+    except ConfigError as e:
+        raise ConfigError(f"{folder / 'config.toml'}: {e}") from None
 
 
 def load_result(folder: str | Path) -> tuple[Experiment, AbstractController]:
     """Load a results folder: its experiment (from `config.toml`) and best controller.
 
     **Raises:** `FileNotFoundError` if the folder lacks those files; `ConfigError` or
-    `ValueError` if they do not check out.
+    `ValueError` if they do not check out, or if the folder holds a multi-stage run (load
+    that with `load_stages`).
     """
-    import tomllib
-
     folder = Path(folder)
-    with (folder / "config.toml").open("rb") as f:
-        raw = tomllib.load(f)
-    try:
-        experiment = parse_config(raw, name=raw.get("name", folder.name))
-    except ConfigError as e:
-        raise ConfigError(f"{folder / 'config.toml'}: {e}") from None
+    experiment = _read_config(folder)
+    if experiment.stages:
+        raise ConfigError(
+            f"{folder} holds a multi-stage run ({len(experiment.stages)} stages); load it "
+            "with load_stages"
+        )
     data = json.loads((folder / "best_controller.json").read_text())
     return experiment, controller_from_dict(data)
+
+
+def load_stages(folder: str | Path) -> tuple[Experiment, tuple[AbstractController, ...]]:
+    """Load a multi-stage results folder: its experiment (from `config.toml`) and each
+    stage's best controller, in order (replay them with `replay_stages`).
+
+    **Raises:** `FileNotFoundError` if the folder lacks those files; `ConfigError` or
+    `ValueError` if they do not check out, or if the folder holds a single search (load
+    that with `load_result`).
+    """
+    folder = Path(folder)
+    experiment = _read_config(folder)
+    if not experiment.stages:
+        raise ConfigError(f"{folder} holds a single search, no stages; load it with load_result")
+    controllers = []
+    for number, stage in enumerate(experiment.stages, start=1):
+        path = folder / stage_folder(number, stage.name) / "best_controller.json"
+        controllers.append(controller_from_dict(json.loads(path.read_text())))
+    return experiment, tuple(controllers)
