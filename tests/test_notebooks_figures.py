@@ -1,0 +1,10 @@
+"""The figures' notebooks run top to bottom with small budgets (a file of their own so that
+they run beside the other notebooks; see `notebook_runner`)."""
+
+import pytest
+from notebook_runner import FIGURE_NOTEBOOKS, HERE, run_notebook
+
+
+@pytest.mark.parametrize("name", FIGURE_NOTEBOOKS)
+def test_notebook_runs(name):
+    assert run_notebook(HERE / name) == []
