@@ -63,7 +63,11 @@ CASES = {
 }
 
 
-@pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.parametrize(
+    "name",
+    # Cujo (a 3D figure) is one more compilation of paths the suite covers: `-m slow`.
+    [pytest.param(n, marks=pytest.mark.slow) if n.startswith("cujo") else n for n in CASES],
+)
 def test_samples_never_change_the_motion_and_continuing_is_exact(name):
     """On the fixed-step path (the search's), for each kind of body (lattice, planar figure,
     3D figure) and controller (regimes, sense-based, time-based BSR):

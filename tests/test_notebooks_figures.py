@@ -5,6 +5,13 @@ import pytest
 from notebook_runner import FIGURE_NOTEBOOKS, HERE, run_notebook
 
 
-@pytest.mark.parametrize("name", FIGURE_NOTEBOOKS)
+@pytest.mark.parametrize(
+    "name",
+    # Bob's sense-based search compiles for about a minute: `-m slow`.
+    [
+        pytest.param(n, marks=pytest.mark.slow) if n == "walking.ipynb" else n
+        for n in FIGURE_NOTEBOOKS
+    ],
+)
 def test_notebook_runs(name):
     assert run_notebook(HERE / name) == []

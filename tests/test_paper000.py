@@ -58,7 +58,11 @@ def run(config: str, out: Path, *extra: str) -> Path:
     return Path(done.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("config", list(MOTIONS))
+@pytest.mark.parametrize(
+    "config",
+    # The pirouette's run is one more CLI run of what the other two cover: `-m slow`.
+    [pytest.param(c, marks=pytest.mark.slow) if c == "table_pirouette" else c for c in MOTIONS],
+)
 def test_each_motion_config_runs_and_writes_everything(config, tmp_path):
     # One writes its GIF (drawing 10 s of frames is a large share of a run's time).
     animated = config == "spider_leap"
