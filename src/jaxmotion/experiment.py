@@ -10,7 +10,6 @@ from ._cli.config import Experiment as Experiment
 from ._cli.config import default_config_path as default_config_path
 from ._cli.config import load_config as load_config
 from ._cli.config import parse_config as parse_config
-from ._cli.results import concatenate_trajectories as concatenate_trajectories
 from ._cli.results import controller_from_dict as controller_from_dict
 from ._cli.results import controller_to_dict as controller_to_dict
 from ._cli.results import load_result as load_result
@@ -21,6 +20,7 @@ from ._cli.results import run_check as run_check
 from ._cli.results import run_experiment as run_experiment
 from ._cli.results import run_sequence_check as run_sequence_check
 from ._cli.results import start_where as start_where
+from ._sim.trajectory import concatenate_trajectories as concatenate_trajectories
 
 __all__ = [
     "ConfigError",

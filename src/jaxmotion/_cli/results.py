@@ -27,7 +27,7 @@ from .._control.time_bsr import TimeBSR
 from .._search.hill_climb import SearchResult, parallel_hill_climb
 from .._search.history import History
 from .._search.serial import serial_search
-from .._sim.trajectory import Trajectory
+from .._sim.trajectory import Trajectory, concatenate_trajectories
 from .._task import Task
 from .config import SEQUENCE_CHECKS, ConfigError, Experiment, parse_config, search_plan
 
@@ -318,6 +318,13 @@ def start_where(stage: Experiment, previous: Trajectory | BodyState | None) -> E
     return dataclasses.replace(stage, task=started)
 
 
+def _chained(stage: Experiment, before: Sequence[Trajectory]) -> Experiment:
+    """`stage` starting where the last of the stages `before` it ended, or (the first
+    stage) from the rest pose, given explicitly: every stage's task then has the same
+    layout, so stages of the same objective share their compiled simulations."""
+    return start_where(stage, before[-1] if before else stage.task.body.initial_state())
+
+
 def _run_stages(
     experiment: Experiment,
     folder: Path,
@@ -335,12 +342,7 @@ def _run_stages(
     summaries: list[dict[str, Any]] = []
     previous_name = None
     for number, stage in enumerate(experiment.stages, start=1):
-        if trajectories:
-            stage = start_where(stage, trajectories[-1])
-        else:
-            # The rest pose, given explicitly: every stage's task then has the same layout,
-            # so stages of the same objective share their compiled simulations.
-            stage = start_where(stage, stage.task.body.initial_state())
+        stage = _chained(stage, trajectories)
         label = f"stage {number}/{count} {stage.name}"
         start = "" if previous_name is None else f", starting where {previous_name} ended"
         say(f"{label}: {search_plan(stage.search)}, seed {stage.seed}{start}")
@@ -415,56 +417,6 @@ def _short(value: float | str) -> str:
     return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
-def concatenate_trajectories(trajectories: Sequence[Trajectory]) -> Trajectory:
-    """One motion of several performed one after another (the stages of a multi-stage
-    run): each later trajectory's times shifted by the durations of those before it, and
-    its first sample dropped (it repeats the previous trajectory's last one when it started
-    from that one's final state, `start_where`).
-
-    **Arguments:** one or more unbatched trajectories of the same body.
-
-    **Returns:** a `Trajectory`: finite when every part is, `final` the last part's,
-    `senses` joined when every part has them (else None).
-
-    **Raises:** `ValueError` for no trajectories, a batched one, or parts of different
-    bodies.
-    """
-    parts = list(trajectories)
-    if not parts:
-        raise ValueError("concatenate_trajectories needs at least one trajectory")
-    for i, part in enumerate(parts):
-        if not isinstance(part, Trajectory) or np.ndim(part.com) != 2:
-            raise ValueError(
-                f"concatenate_trajectories joins unbatched Trajectory objects; part {i} is "
-                f"{'batched' if isinstance(part, Trajectory) else type(part).__name__}"
-            )
-        if np.shape(part.points)[1:] != np.shape(parts[0].points)[1:]:
-            raise ValueError(
-                f"concatenate_trajectories: part {i} has points of shape "
-                f"{np.shape(part.points)[1:]}, part 0 {np.shape(parts[0].points)[1:]} (one body)"
-            )
-    ts, offset = [parts[0].ts], parts[0].ts[-1]
-    for part in parts[1:]:
-        ts.append(part.ts[1:] - part.ts[0] + offset)
-        offset = offset + part.ts[-1] - part.ts[0]
-
-    def join(name):
-        leaves = [getattr(p, name) for p in parts]
-        return jnp.concatenate([leaves[0], *(leaf[1:] for leaf in leaves[1:])])
-
-    sensed = all(p.senses is not None for p in parts)
-    return Trajectory(
-        ts=jnp.concatenate(ts),
-        points=join("points"),
-        com=join("com"),
-        frame=join("frame"),
-        contact=join("contact"),
-        finite=jnp.all(jnp.stack([jnp.asarray(p.finite) for p in parts])),
-        final=parts[-1].final,
-        senses=join("senses") if sensed else None,
-    )
-
-
 def replay_stages(
     experiment: Experiment,
     controllers: Sequence[AbstractController],
@@ -484,8 +436,7 @@ def replay_stages(
         )
     trajectories: list[Trajectory] = []
     for stage, controller in zip(experiment.stages, controllers, strict=True):
-        previous = trajectories[-1] if trajectories else stage.task.body.initial_state()
-        stage = start_where(stage, previous)
+        stage = _chained(stage, trajectories)
         trajectories.append(stage.task.simulate(controller, solver=solver))
     return trajectories
 

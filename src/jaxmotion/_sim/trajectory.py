@@ -1,11 +1,13 @@
 """What a simulation returns: the observables every body reports at saved times, and the full
 state it ended in."""
 
+from collections.abc import Sequence
 from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, PyTree
 
 
@@ -102,3 +104,53 @@ def all_finite(*trees: PyTree) -> Bool[Array, ""]:
         if jnp.issubdtype(jnp.result_type(leaf), jnp.floating):
             ok = ok & jnp.all(jnp.isfinite(leaf))
     return ok
+
+
+def concatenate_trajectories(trajectories: Sequence[Trajectory]) -> Trajectory:
+    """One motion of several performed one after another (the stages of a multi-stage
+    run): each later trajectory's times shifted by the durations of those before it, and
+    its first sample dropped (it repeats the previous trajectory's last one when it started
+    from that one's final state, as `jaxmotion.experiment.start_where` starts a stage).
+
+    **Arguments:** one or more unbatched trajectories of the same body.
+
+    **Returns:** a `Trajectory`: finite when every part is, `final` the last part's,
+    `senses` joined when every part has them (else None).
+
+    **Raises:** `ValueError` for no trajectories, a batched one, or parts of different
+    bodies.
+    """
+    parts = list(trajectories)
+    if not parts:
+        raise ValueError("concatenate_trajectories needs at least one trajectory")
+    for i, part in enumerate(parts):
+        if not isinstance(part, Trajectory) or np.ndim(part.com) != 2:
+            raise ValueError(
+                f"concatenate_trajectories joins unbatched Trajectory objects; part {i} is "
+                f"{'batched' if isinstance(part, Trajectory) else type(part).__name__}"
+            )
+        if np.shape(part.points)[1:] != np.shape(parts[0].points)[1:]:
+            raise ValueError(
+                f"concatenate_trajectories: part {i} has points of shape "
+                f"{np.shape(part.points)[1:]}, part 0 {np.shape(parts[0].points)[1:]} (one body)"
+            )
+    ts, offset = [parts[0].ts], parts[0].ts[-1]
+    for part in parts[1:]:
+        ts.append(part.ts[1:] - part.ts[0] + offset)
+        offset = offset + part.ts[-1] - part.ts[0]
+
+    def join(name):
+        leaves = [getattr(p, name) for p in parts]
+        return jnp.concatenate([leaves[0], *(leaf[1:] for leaf in leaves[1:])])
+
+    sensed = all(p.senses is not None for p in parts)
+    return Trajectory(
+        ts=jnp.concatenate(ts),
+        points=join("points"),
+        com=join("com"),
+        frame=join("frame"),
+        contact=join("contact"),
+        finite=jnp.all(jnp.stack([jnp.asarray(p.finite) for p in parts])),
+        final=parts[-1].final,
+        senses=join("senses") if sensed else None,
+    )
