@@ -148,9 +148,7 @@ class SenseBSR(AbstractController):
         (works on a batch-last stack too: `(R, *batch)`)."""
         lam, weight = plan
         d = lam * (senses[None] - self.centres)
-        worst = d[:, 0] * d[:, 0]
-        for j in range(1, d.shape[1]):
-            worst = jnp.maximum(worst, d[:, j] * d[:, j])
+        worst = jnp.max(d * d, axis=1)
         return weight * (1.0 - worst)
 
     def init(self, senses, plan) -> ControllerState:
