@@ -102,6 +102,23 @@ def test_feet_forward_moves_with_the_points_that_start_on_the_floor():
     assert value("feet_forward", slid) == pytest.approx(2.0)
 
 
+def test_until_fall_and_standing_time_stop_at_the_first_sample_below_60_percent():
+    # The cube walks 1 m in 0.5 s at its standing height 0.5 m, then dives: at t = 0.6 s its
+    # centre of mass is 0.25 m up (below 60% of 0.5) and 1.5 m along; it ends 3.5 m along.
+    x = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5]
+    z = [0.5] * 6 + [0.25] * 5
+    dive = make(np.stack([x, np.zeros(11), z], axis=1))
+    assert value("forward", dive) == pytest.approx(3.5)
+    assert value("forward", dive, until_fall=True) == pytest.approx(1.5)
+    assert value("feet_forward", dive, until_fall=True) == pytest.approx(1.5)
+    assert value("standing_time", dive) == pytest.approx(0.6)
+    # Dropping to exactly 60% is not yet a fall; a body that never falls counts to the end.
+    crouch = make(np.stack([x, np.zeros(11), [0.5] * 6 + [0.3] * 5], axis=1))
+    assert value("standing_time", crouch) == pytest.approx(1.0)
+    assert value("forward", crouch, until_fall=True) == pytest.approx(3.5)
+    assert value("feet_forward", crouch, until_fall=True) == pytest.approx(3.5)
+
+
 def test_flight_time_counts_intervals_with_every_point_high_enough():
     # The unit cube hops 0.1 m up over 5 of every 10 samples (intervals of 0.1 s), or
     # skims 2 mm up (no contact flag either way).

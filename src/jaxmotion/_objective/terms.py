@@ -8,7 +8,7 @@ Angles are in radians unless an option says degrees; lengths in metres; times in
 import math
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from .._sim.trajectory import Trajectory
 from .registry import register_term
@@ -40,12 +40,35 @@ def _increments(frame: Float[Array, "t 3 3"], world: bool) -> Float[Array, "t-1 
     return vee * factor[..., None]
 
 
+FALL_SHARE = 0.6
+"""A body has fallen once its centre of mass is below this share of its starting height (the
+`walk` check's criterion); see `until_fall` and `standing_time`."""
+
+
+def _fall_index(trajectory: Trajectory) -> Int[Array, ""]:
+    """The first saved sample at which the centre of mass is below `FALL_SHARE` of its
+    starting height, or the last sample if it never is."""
+    z = trajectory.com[:, 2]
+    below = z < FALL_SHARE * z[0]
+    return jnp.where(jnp.any(below), jnp.argmax(below), z.shape[0] - 1)
+
+
+def _end(trajectory: Trajectory, until_fall: bool):
+    return _fall_index(trajectory) if until_fall else -1
+
+
 @register_term("forward")
-def forward(trajectory: Trajectory) -> Float[Array, ""]:
+def forward(trajectory: Trajectory, until_fall: bool = False) -> Float[Array, ""]:
     """Final horizontal displacement of the centre of mass along the body's initial forward
-    direction (m; Table 1's primary term for walking and bounding)."""
+    direction (m; Table 1's primary term for walking and bounding).
+
+    With `until_fall`, the displacement when the body falls (the first sample with its
+    centre of mass below 60% of its starting height), or at the end if it never does: a
+    dive forward earns only what it travelled standing, as an episode that ends at a fall
+    scores in reinforcement learning.
+    """
     direction = _horizontal_unit(trajectory.frame[0, :, 0])
-    shift = trajectory.com[-1, :2] - trajectory.com[0, :2]
+    shift = trajectory.com[_end(trajectory, until_fall), :2] - trajectory.com[0, :2]
     return jnp.dot(shift, direction)
 
 
@@ -59,7 +82,9 @@ def sideways(trajectory: Trajectory) -> Float[Array, ""]:
 
 
 @register_term("feet_forward")
-def feet_forward(trajectory: Trajectory, tolerance: float = 0.01) -> Float[Array, ""]:
+def feet_forward(
+    trajectory: Trajectory, tolerance: float = 0.01, until_fall: bool = False
+) -> Float[Array, ""]:
     """Mean final horizontal displacement of the feet along the body's initial forward
     direction (m; the second paper rewarded Bob's feet moving forward with his centre of
     mass, footnote 10).
@@ -67,14 +92,23 @@ def feet_forward(trajectory: Trajectory, tolerance: float = 0.01) -> Float[Array
     The feet are the points that stand on the floor at the start: within `tolerance` m of
     the lowest point at the first sample (Bob's and Star-Man's two point feet, Rex's four
     foot nodes, a lattice's bottom masses). A body that only leans forward moves its centre
-    of mass but not its feet; one that walks moves both.
+    of mass but not its feet; one that walks moves both. `until_fall`: as `forward`'s.
     """
     z0 = trajectory.points[0, :, 2]
     feet = z0 <= jnp.min(z0) + tolerance
     direction = _horizontal_unit(trajectory.frame[0, :, 0])
-    shift = trajectory.points[-1, :, :2] - trajectory.points[0, :, :2]
+    end = _end(trajectory, until_fall)
+    shift = trajectory.points[end, :, :2] - trajectory.points[0, :, :2]
     along = shift @ direction
     return jnp.sum(jnp.where(feet, along, 0.0)) / jnp.sum(feet)
+
+
+@register_term("standing_time")
+def standing_time(trajectory: Trajectory) -> Float[Array, ""]:
+    """Time from the start until the body falls (s): the first saved instant with its centre
+    of mass below 60% of its starting height, or the whole duration if it never falls (a
+    slope toward staying up for longer; reinforcement learning's "alive" reward)."""
+    return trajectory.ts[_fall_index(trajectory)] - trajectory.ts[0]
 
 
 @register_term("distance")
