@@ -119,6 +119,18 @@ def test_until_fall_and_standing_time_stop_at_the_first_sample_below_60_percent(
     assert value("feet_forward", crouch, until_fall=True) == pytest.approx(3.5)
 
 
+def test_final_spin_is_the_last_intervals_turn_rate():
+    # Pitching at 2 rad/s about the left axis for the last 0.1 s (after resting), or yawing
+    # at 3 rad/s throughout: the rate over the last interval, whatever the axis.
+    angles = [0.0] * 10 + [0.2]
+    pitching = make(np.zeros((11, 3)), frames=np.stack([rot_y(a) for a in angles]))
+    assert value("final_spin", pitching) == pytest.approx(2.0, rel=ACCUMULATED_RTOL)
+    yawing = make(np.zeros((11, 3)), frames=np.stack([rot_z(0.3 * k) for k in range(11)]))
+    assert value("final_spin", yawing) == pytest.approx(3.0, rel=ACCUMULATED_RTOL)
+    still = make(np.zeros((11, 3)))
+    assert value("final_spin", still) == pytest.approx(0.0, abs=CANCELLED_ATOL)
+
+
 def test_flight_time_counts_intervals_with_every_point_high_enough():
     # The unit cube hops 0.1 m up over 5 of every 10 samples (intervals of 0.1 s), or
     # skims 2 mm up (no contact flag either way).

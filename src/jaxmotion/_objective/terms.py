@@ -326,6 +326,17 @@ def final_tilt(trajectory: Trajectory) -> Float[Array, ""]:
     return _tilt_from_cos(trajectory.frame[-1, 2, 2])
 
 
+@register_term("final_spin")
+def final_spin(trajectory: Trajectory) -> Float[Array, ""]:
+    """How fast the body turns at the final time (rad/s): the rotation between the last two
+    saved frames over their interval. Penalise it so that a motion ends where the next can
+    start (a walk that ends pitching forward still stands at its last instant, but falls
+    at the next)."""
+    inc = _increments(trajectory.frame[-2:], world=True)[0]
+    angle = jnp.sqrt(jnp.sum(inc * inc) + 1e-20)
+    return angle / (trajectory.ts[-1] - trajectory.ts[-2])
+
+
 @register_term("fallen")
 def fallen(trajectory: Trajectory, max_degrees: float = 45.0) -> Float[Array, ""]:
     """1 if at the final time the body's up axis tilts more than `max_degrees` from vertical,
