@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import jaxmotion as jm
@@ -16,6 +17,7 @@ from jaxmotion.experiment import (
     load_config,
     load_result,
     parse_config,
+    read_history_csv,
     run_experiment,
 )
 
@@ -139,6 +141,14 @@ def test_a_figure_run_writes_its_results_with_batched_runs_and_replays_exactly(t
     # 3 generations of 10 climbers (30 evaluations) after the initial 10, for each of 2 runs.
     assert summary["evaluations"] == 2 * 10 * 4
     assert [r["run"] for r in summary["runs"]] == [0, 1]
+    # Each run's history (the best run's is history.csv too) and their learning curves.
+    runs = [read_history_csv(folder / f"history-run-{i}.csv") for i in (0, 1)]
+    assert all(len(h) == 10 * 4 for h in runs)
+    best_run = int(np.argmax([r["best_fitness"] for r in summary["runs"]]))
+    np.testing.assert_array_equal(
+        runs[best_run].fitness, read_history_csv(folder / "history.csv").fitness
+    )
+    assert (folder / "learning_curves.png").stat().st_size > 0
     assert summary["best_fitness"] == max(r["best_fitness"] for r in summary["runs"])
     assert all(r["check"]["name"] == "shuffle" for r in summary["runs"])
     loaded, controller = load_result(folder)

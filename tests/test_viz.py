@@ -92,6 +92,24 @@ def test_learning_plot_rejects_fitness_that_is_not_1d():
         viz.learning_plot(np.zeros((3, 4)))
 
 
+def test_learning_curves_draw_each_runs_best_so_far():
+    runs = [np.array([1.0, 0.5, 2.0, 1.0]), np.array([-np.inf, 0.0, 3.0, -1.0, 4.0])]
+    fig = viz.learning_curves(runs, title="five runs")
+    (ax,) = fig.axes
+    first, second = ax.lines
+    np.testing.assert_array_equal(first.get_xdata(), [1, 2, 3, 4])
+    np.testing.assert_array_equal(first.get_ydata(), [1.0, 1.0, 2.0, 2.0])
+    # The second run's line starts at its first finite evaluation.
+    np.testing.assert_array_equal(second.get_xdata(), [2, 3, 4, 5])
+    np.testing.assert_array_equal(second.get_ydata(), [0.0, 3.0, 3.0, 4.0])
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["run 0", "run 1"]
+    assert ax.get_title() == "five runs"
+    with pytest.raises(ValueError, match="2 labels for 1 runs"):
+        viz.learning_curves(runs[:1], labels=["a", "b"])
+    with pytest.raises(ValueError, match="at least one"):
+        viz.learning_curves([])
+
+
 def test_animate_saves_a_gif_with_one_frame_per_tick(cube_motion, tmp_path):
     trajectory, body = cube_motion
     fps = 10

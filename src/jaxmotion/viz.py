@@ -7,7 +7,8 @@ function returns its figure or animation.
 from ._viz.animation import Animation as Animation
 from ._viz.animation import animate as animate
 from ._viz.filmstrip import filmstrip as filmstrip
+from ._viz.learning import learning_curves as learning_curves
 from ._viz.learning import learning_plot as learning_plot
 from ._viz.reflexes import reflexes as reflexes
 
-__all__ = ["Animation", "animate", "filmstrip", "learning_plot", "reflexes"]
+__all__ = ["Animation", "animate", "filmstrip", "learning_curves", "learning_plot", "reflexes"]

@@ -210,7 +210,7 @@ def _search_and_write(
     config: `best_controller.json`, `history.csv`, `learning_plot.png`, `motion.gif` and
     `summary.json` (`stage`: a stage's place in its sequence, added to both JSON files).
     Returns the summary and the best motion."""
-    from ..viz import animate, learning_plot
+    from ..viz import animate, learning_curves, learning_plot
 
     result, timing = _run_search(experiment, progress)
     search_seconds = timing["search_time_s"]
@@ -254,6 +254,13 @@ def _search_and_write(
     write_history_csv(folder / "history.csv", result.history)
     fig = learning_plot(result.history, title=f"{experiment.name}: learning plot")
     fig.savefig(folder / "learning_plot.png", dpi=120)
+    if len(runs) > 1:
+        # Independent runs: each one's history and their learning curves (Figure 8).
+        for i, r in enumerate(runs):
+            write_history_csv(folder / f"history-run-{i}.csv", r.history)
+        title = f"{experiment.name}: {len(runs)} independent runs"
+        fig = learning_curves([r.history for r in runs], title=title)
+        fig.savefig(folder / "learning_curves.png", dpi=120)
     if want_animation:
         animate(trajectory, task.body, fps=experiment.output["fps"]).save(folder / "motion.gif")
     summary = {

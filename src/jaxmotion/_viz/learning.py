@@ -1,4 +1,7 @@
-"""`learning_plot`: the fitness of every evaluation of a search and the best so far."""
+"""`learning_plot`: the fitness of every evaluation of a search and the best so far;
+`learning_curves`: the best so far of several independent runs."""
+
+from collections.abc import Sequence
 
 import numpy as np
 from jaxtyping import ArrayLike, Float
@@ -79,6 +82,63 @@ def learning_plot(
     if title is not None:
         ax.set_title(title)
     ax.legend(loc="lower right", markerscale=3)
+    return fig
+
+
+def learning_curves(
+    histories: Sequence[History | Float[ArrayLike, " num_evaluations"]],
+    *,
+    labels: Sequence[str] | None = None,
+    ax: Axes | None = None,
+    title: str | None = None,
+) -> Figure:
+    """The learning curves of independent runs of one search (the second paper's Figure 8,
+    its run-to-run spread): the best fitness so far of each run against its evaluations,
+    one line per run. Non-finite evaluations do not count; a run's line starts at its first
+    finite evaluation.
+
+    **Arguments:** `histories` (one `History` or 1-D fitness array per run, e.g.
+    `[r.history for r in serial_search(..., seeds=5).runs]`); `labels` (one per run;
+    default "run 0", "run 1", ...); `ax`; `title`.
+
+    **Returns:** the `matplotlib.figure.Figure` drawn into.
+
+    **Raises:** `ValueError` for no runs, a fitness that is not one-dimensional, or a number
+    of labels that is not the number of runs.
+    """
+    runs = [
+        np.asarray(h.fitness if isinstance(h, History) else h, dtype=np.float64) for h in histories
+    ]
+    if not runs:
+        raise ValueError("learning_curves needs at least one run's history")
+    for i, f in enumerate(runs):
+        if f.ndim != 1:
+            raise ValueError(
+                f"learning_curves: run {i} has fitness of shape {f.shape}; allowed: one "
+                "fitness per evaluation (a History or a 1-D array)"
+            )
+    labels = [f"run {i}" for i in range(len(runs))] if labels is None else list(labels)
+    if len(labels) != len(runs):
+        raise ValueError(f"learning_curves: {len(labels)} labels for {len(runs)} runs")
+    if ax is None:
+        fig = Figure(figsize=(6.0, 4.0), layout="constrained")
+        FigureCanvasAgg(fig)
+        ax = fig.add_subplot()
+    else:
+        fig = _root_figure(ax)
+    for fitness, label in zip(runs, labels, strict=True):
+        finite = np.isfinite(fitness)
+        best = np.maximum.accumulate(np.where(finite, fitness, -np.inf))
+        start = int(np.argmax(finite)) if finite.any() else fitness.shape[0]
+        evaluation = np.arange(1, fitness.shape[0] + 1)
+        ax.plot(
+            evaluation[start:], best[start:], linewidth=1.5, drawstyle="steps-post", label=label
+        )
+    ax.set_xlabel("evaluation")
+    ax.set_ylabel("best fitness so far")
+    if title is not None:
+        ax.set_title(title)
+    ax.legend(loc="lower right")
     return fig
 
 
