@@ -38,7 +38,8 @@ def test_evaluate_equals_the_objective_of_each_simulation(x64):
         assert fitness[b] == pytest.approx(float(task.objective(trajectory)), abs=1e-9)
 
 
-@pytest.mark.parametrize("size", [5, 32])
+# 32 (several lane groups) runs the same code as 5 at another shape (CI's time): `-m slow`.
+@pytest.mark.parametrize("size", [5, pytest.param(32, marks=pytest.mark.slow)])
 def test_fitness_does_not_depend_on_batch_order(size):
     task = cube_task()
     params = task.sample(size, key=jr.key(1))
