@@ -291,6 +291,17 @@ def heading(trajectory: Trajectory, absolute: bool = False) -> Float[Array, ""]:
     return jnp.abs(net) if absolute else net
 
 
+@register_term("heading_deviation")
+def heading_deviation(trajectory: Trajectory) -> Float[Array, ""]:
+    """Largest angle between the heading at a saved instant and the initial heading (rad,
+    0 to pi), as the `walk` check measures it: penalise it so that a walk keeps its
+    direction throughout (`heading` and `net_yaw` see only the net turn, so a walk that
+    veers and comes back costs them nothing). A sample whose forward axis is vertical (no
+    heading) counts 0."""
+    h = trajectory.frame[:, :2, 0]
+    return jnp.max(jnp.abs(_signed_angles(h[:1], h)))
+
+
 def _angle_between(a, b):
     cos = jnp.sum(a * b, axis=-1)
     return jnp.clip(cos, -1.0, 1.0)
