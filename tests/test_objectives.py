@@ -504,7 +504,7 @@ NEW_TERMS = ["contact_distance", "rotations", "heading", "heading_deviation", "f
 # heading_deviation is |angle|, maximised over samples: at a motion that never turns (the
 # first of `motions`) it sits on the kink at 0, where central differences give 0 and the
 # gradient a one-sided slope, as for `sideways`.
-SMOOTH_TERMS = [n for n in NEW_TERMS if n != "heading_deviation"]
+SMOOTH_TERMS = [n for n in NEW_TERMS if n != "heading_deviation"] + ["rotation", "final_tilt"]
 
 
 @pytest.mark.parametrize("name", NEW_TERMS)

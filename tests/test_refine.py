@@ -54,7 +54,12 @@ def task_for(weights, duration=0.3):
     )
 
 
-@pytest.mark.parametrize("term", list(TERMS))
+# The rotation objective differentiates the same simulation as the translation one (the
+# gradients of `rotation` and `final_tilt` themselves are checked against differences in
+# test_objectives.py); one more gradient compile: `-m slow`.
+@pytest.mark.parametrize(
+    "term", [pytest.param(t, marks=pytest.mark.slow) if t == "rotation" else t for t in TERMS]
+)
 def test_gradients_agree_with_central_differences(term, x64):
     task = task_for(TERMS[term])
     params = task.sample(3, key=jr.key(4))
