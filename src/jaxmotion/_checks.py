@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._objective.terms import heading, net_yaw, rotation, rotations
+from ._objective.terms import FALL_SHARE, heading, net_yaw, rotation, rotations
 from ._sim.trajectory import Trajectory
 
 
@@ -449,7 +449,7 @@ def walk(
     feet,
     min_heights: float = 1.5,
     max_heading_degrees: float = 30.0,
-    min_height_share: float = 0.6,
+    min_height_share: float = FALL_SHARE,
     min_steps: int = 4,
 ) -> CheckResult:
     """A walk (the second paper's section 4: Bob's walk, Rex's walking stages): travels
@@ -504,7 +504,7 @@ def walk_turn_walk(
     *,
     feet,
     min_turn_degrees: float = 45.0,
-    min_height_share: float = 0.6,
+    min_height_share: float = FALL_SHARE,
     min_heights: float = 1.5,
     max_heading_degrees: float = 30.0,
     min_steps: int = 4,

@@ -37,20 +37,8 @@ def learning_plot(
 
     **Raises:** `ValueError` if the fitness is not one-dimensional.
     """
-    fitness = history.fitness if isinstance(history, History) else history
-    fitness = np.asarray(fitness, dtype=np.float64)
-    if fitness.ndim != 1:
-        raise ValueError(
-            "learning_plot needs one fitness per evaluation (a History or a 1-D array); got "
-            f"an array of shape {fitness.shape}"
-        )
-    if ax is None:
-        fig = Figure(figsize=(6.0, 4.0), layout="constrained")
-        FigureCanvasAgg(fig)  # renders without pyplot or a GUI backend
-        ax = fig.add_subplot()
-    else:
-        fig = _root_figure(ax)
-
+    fitness = _fitness(history, "learning_plot")
+    fig, ax = _axes(ax)
     evaluation = np.arange(1, fitness.shape[0] + 1)
     finite = np.isfinite(fitness)
     num_nonfinite = int(np.sum(~finite))
@@ -66,17 +54,7 @@ def learning_plot(
         linewidths=0,
         label=label,
     )
-    best = np.maximum.accumulate(np.where(finite, fitness, -np.inf))
-    # The line starts at the first finite evaluation: before it there is no best yet.
-    start = int(np.argmax(finite)) if finite.any() else fitness.shape[0]
-    ax.plot(
-        evaluation[start:],
-        best[start:],
-        color="tab:red",
-        linewidth=1.5,
-        drawstyle="steps-post",
-        label="best so far",
-    )
+    _plot_best_so_far(ax, fitness, color="tab:red", label="best so far")
     ax.set_xlabel("evaluation")
     ax.set_ylabel("fitness")
     if title is not None:
@@ -106,40 +84,52 @@ def learning_curves(
     **Raises:** `ValueError` for no runs, a fitness that is not one-dimensional, or a number
     of labels that is not the number of runs.
     """
-    runs = [
-        np.asarray(h.fitness if isinstance(h, History) else h, dtype=np.float64) for h in histories
-    ]
+    runs = [_fitness(h, f"learning_curves (run {i})") for i, h in enumerate(histories)]
     if not runs:
         raise ValueError("learning_curves needs at least one run's history")
-    for i, f in enumerate(runs):
-        if f.ndim != 1:
-            raise ValueError(
-                f"learning_curves: run {i} has fitness of shape {f.shape}; allowed: one "
-                "fitness per evaluation (a History or a 1-D array)"
-            )
     labels = [f"run {i}" for i in range(len(runs))] if labels is None else list(labels)
     if len(labels) != len(runs):
         raise ValueError(f"learning_curves: {len(labels)} labels for {len(runs)} runs")
-    if ax is None:
-        fig = Figure(figsize=(6.0, 4.0), layout="constrained")
-        FigureCanvasAgg(fig)
-        ax = fig.add_subplot()
-    else:
-        fig = _root_figure(ax)
+    fig, ax = _axes(ax)
     for fitness, label in zip(runs, labels, strict=True):
-        finite = np.isfinite(fitness)
-        best = np.maximum.accumulate(np.where(finite, fitness, -np.inf))
-        start = int(np.argmax(finite)) if finite.any() else fitness.shape[0]
-        evaluation = np.arange(1, fitness.shape[0] + 1)
-        ax.plot(
-            evaluation[start:], best[start:], linewidth=1.5, drawstyle="steps-post", label=label
-        )
+        _plot_best_so_far(ax, fitness, label=label)
     ax.set_xlabel("evaluation")
     ax.set_ylabel("best fitness so far")
     if title is not None:
         ax.set_title(title)
     ax.legend(loc="lower right")
     return fig
+
+
+def _fitness(history, who: str) -> np.ndarray:
+    """The fitness of every evaluation of `history` (a `History` or an array), 1-D."""
+    fitness = np.asarray(history.fitness if isinstance(history, History) else history, float)
+    if fitness.ndim != 1:
+        raise ValueError(
+            f"{who} needs one fitness per evaluation (a History or a 1-D array); got an "
+            f"array of shape {fitness.shape}"
+        )
+    return fitness
+
+
+def _axes(ax: Axes | None) -> tuple[Figure, Axes]:
+    """The figure holding `ax`, or a new figure and axes (rendered without pyplot or a GUI
+    backend)."""
+    if ax is not None:
+        return _root_figure(ax), ax
+    fig = Figure(figsize=(6.0, 4.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig, fig.add_subplot()
+
+
+def _plot_best_so_far(ax: Axes, fitness: np.ndarray, **style) -> None:
+    """The best finite fitness so far against the evaluation number (from 1), as steps. The
+    line starts at the first finite evaluation: before it there is no best yet."""
+    finite = np.isfinite(fitness)
+    best = np.maximum.accumulate(np.where(finite, fitness, -np.inf))
+    start = int(np.argmax(finite)) if finite.any() else fitness.shape[0]
+    evaluation = np.arange(1, fitness.shape[0] + 1)
+    ax.plot(evaluation[start:], best[start:], linewidth=1.5, drawstyle="steps-post", **style)
 
 
 def _root_figure(ax: Axes) -> Figure:
