@@ -10,12 +10,27 @@ os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_CACHE))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 
+# The test processes compile with XLA's backend optimisation off: they compile a few hundred
+# small programs and run most of them for a fraction of a second, so LLVM's optimisation
+# passes were a fifth of a cold suite's time and bought nothing. XLA reads its flags once,
+# at the first compilation (below); the subprocesses the tests start (the CLI, the notebook
+# kernels) get the environment back as it was, and compile as a user's run does, so the
+# promises that hold end to end (a search's best replays alone to the very fitness the
+# search recorded) are still tested on the code users run.
+_USER_XLA_FLAGS = os.environ.get("XLA_FLAGS")
+os.environ["XLA_FLAGS"] = f"{_USER_XLA_FLAGS or ''} --xla_backend_optimization_level=0".strip()
+
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
 jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+jax.jit(lambda x: x + 1).lower(1.0).compile()  # XLA parses XLA_FLAGS here, once
+if _USER_XLA_FLAGS is None:
+    del os.environ["XLA_FLAGS"]
+else:
+    os.environ["XLA_FLAGS"] = _USER_XLA_FLAGS
 
 
 @pytest.fixture

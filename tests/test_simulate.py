@@ -137,6 +137,9 @@ def test_fixed_step_and_adaptive_solvers_agree_and_converge_at_first_order(x64):
     assert abs(slope - 1.0) < 0.2  # ORDER: first order
 
 
+# Two adaptive solvers against each other: the fixed-step one is checked against an adaptive
+# one in CI (the test above); this is one more pair of adaptive compilations: `-m slow`.
+@pytest.mark.slow
 def test_adaptive_solvers_agree_with_each_other(x64):
     cube, start = squeezed_cube()
     world = jm.World()

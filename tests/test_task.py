@@ -155,9 +155,10 @@ SHARDING_SCRIPT = textwrap.dedent(
     task = jm.Task(jm.lattices.cube(), jm.World(), jm.RegimesSpace(4, 0.5),
                    jm.Objective({"forward": 1.0, "upright": -10.0}), duration=0.5)
     out = {"devices": len(jax.devices())}
-    for size in (7, 41):  # 7 stays on one device; 41 is padded to 42 and split in two
-        params = task.sample(size, key=jr.key(9))
-        out[size] = np.asarray(task.evaluate(params)).tolist()
+    # 41 controllers: padded and split in two on two devices, whole on one (a batch too
+    # small to split runs the one-device program on either).
+    params = task.sample(41, key=jr.key(9))
+    out[41] = np.asarray(task.evaluate(params)).tolist()
     print(json.dumps(out))
     """
 )
@@ -174,7 +175,6 @@ def run_with_devices(n):
 def test_sharding_over_two_devices_gives_identical_results():
     one, two = run_with_devices(1), run_with_devices(2)
     assert (one["devices"], two["devices"]) == (1, 2)
-    assert one["7"] == two["7"]
     assert one["41"] == two["41"]
 
 
