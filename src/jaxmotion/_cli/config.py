@@ -582,8 +582,10 @@ def _parse_stages(raw: Mapping[str, Any], name: str) -> Experiment:
     error names the stage. `[body]`, `[world]` and `[output]` are shared (top level only). A
     stage's `[stage.check]` checks that stage's motion; the top-level `[check]` checks the
     whole sequence: a sequence check (`walk_turn_walk`) on the stages' trajectories in
-    order, any other check on the stages' motions joined end to end. A stage runs one
-    search (`runs = 1`): independent runs of a sequence are runs with several seeds.
+    order, any other check on the stages' motions joined end to end. A stage's `runs`
+    (serial search) are independent searches of that stage from the same start, batched;
+    the stage keeps the best run's motion, and the next stage starts where it ended.
+    Independent runs of the whole sequence are runs with several seeds.
 
     The resolved config keeps `[body]`, `[world]`, `[output]` and `[check]` at the top level
     and spells out every stage's merged tables in full, so it parses to itself.
@@ -659,14 +661,6 @@ def _parse_stages(raw: Mapping[str, Any], name: str) -> Experiment:
             stage = _parse_single(merged, stage_name)
         except ConfigError as e:
             raise ConfigError(f"{where}: {e}") from None
-        runs = stage.search.get("runs", 1)
-        if runs > 1:
-            raise ConfigError(
-                f"{where}: [search] runs = {runs}; allowed: runs = 1 (a multi-stage config "
-                "runs one search per stage, each starting where the previous stage's best "
-                "motion ended; for independent runs of the sequence, run the config with "
-                "several --seed)"
-            )
         stages.append(stage)
 
     resolved: dict[str, Any] = dict(head)

@@ -163,11 +163,12 @@ def run_experiment(
     temporary folder and renamed into place only when complete, so a failed or interrupted
     run leaves nothing half-written behind.
 
-    A multi-stage experiment (`Experiment.stages`) runs one search per stage, in order,
-    stage k starting from the final body state of stage k-1's best motion (`start_where`;
-    its controller starts from its own initial state at its own time 0), with the stage's
-    own seed (the experiment's seed + i for the i-th stage from 0). The folder then holds
-    `config.toml` (resolved), one subfolder per stage (`stage-1-<name>/`, ...) with what a
+    A multi-stage experiment (`Experiment.stages`) runs one search per stage (its `runs`
+    independent runs batched, the best run's motion kept), in order, stage k starting
+    from the final body state of stage k-1's best motion (`start_where`; its controller
+    starts from its own initial state at its own time 0), with the stage's own seed (the
+    experiment's seed + i for the i-th stage from 0). The folder then holds `config.toml`
+    (resolved), one subfolder per stage (`stage-1-<name>/`, ...) with what a
     single search's folder holds but the config, `summary.json` (every stage's best
     fitness, terms, check and wall time, and the check of the whole sequence) and
     `motion.gif` of the whole sequence (`concatenate_trajectories`). `report` is called with
