@@ -1,10 +1,10 @@
 import os
 from pathlib import Path
 
-# One persistent compilation cache for the whole test run: every process of it (the xdist
-# workers, the CLI and the notebook kernels the tests start) reuses what another compiled
-# (a simulation compiles in seconds; most tests compile a handful). Set before JAX starts;
-# the subprocesses inherit it through the environment.
+# A persistent compilation cache for the whole test run: every process of it (the xdist
+# workers; the CLI and the notebook kernels the tests start) reuses what another of its kind
+# compiled (a simulation compiles in seconds; most tests compile a handful). Set before JAX
+# starts; the subprocesses inherit it through the environment.
 _CACHE = Path(__file__).resolve().parents[1] / ".jax_cache"
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_CACHE))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
@@ -16,14 +16,19 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 # at the first compilation (below); the subprocesses the tests start (the CLI, the notebook
 # kernels) get the environment back as it was, and compile as a user's run does, so the
 # promises that hold end to end (a search's best replays alone to the very fitness the
-# search recorded) are still tested on the code users run.
+# search recorded) are still tested on the code users run. JAX keys its persistent cache on
+# the XLA_FLAGS of the moment, restored below, so the test processes keep their programs in
+# a cache of their own (`.jax_cache/tests`): there a subprocess never finds, and runs, an
+# unoptimised program under its own key.
 _USER_XLA_FLAGS = os.environ.get("XLA_FLAGS")
 os.environ["XLA_FLAGS"] = f"{_USER_XLA_FLAGS or ''} --xla_backend_optimization_level=0".strip()
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
-jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+jax.config.update(
+    "jax_compilation_cache_dir", str(Path(os.environ["JAX_COMPILATION_CACHE_DIR"]) / "tests")
+)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 jax.jit(lambda x: x + 1).lower(1.0).compile()  # XLA parses XLA_FLAGS here, once
