@@ -193,13 +193,7 @@ def _integrate(
     computes the very states) the uninterrupted one did.
     """
     rtol, atol = _tolerances(rtol, atol)
-    dtype = jnp.result_type(float)
-    # Whole tick counts in integers, each time a single rounding `k * control_dt` (XLA would
-    # reassociate float products of constants, `(k * save_every) * dt` -> `k * (save_every
-    # dt)`, and label the same instant differently for different save intervals).
-    n0 = jnp.round(jnp.asarray(t0, dtype=dtype) / grid.control_dt).astype(jnp.int32)
-    steps = n0 + grid.save_every * jnp.arange(grid.num_saves + 1, dtype=jnp.int32)
-    ticks = steps.astype(dtype) * jnp.asarray(grid.control_dt, dtype=dtype)  # a sample each
+    ticks = _save_ticks(t0, grid)  # a sample at each
     saveat = dfx.SaveAt(
         subs=[dfx.SubSaveAt(t0=True, steps=True, fn=system.sample), dfx.SubSaveAt(t1=True)]
     )
@@ -224,6 +218,27 @@ def _integrate(
     return sol.ts[0], samples, final, sol.result == dfx.RESULTS.successful
 
 
+def _save_ticks(t0, grid: TimeGrid):
+    """The tick times of the samples from `t0`: `(n0 + k save_every) control_dt`, `n0 =
+    round(t0 / control_dt)`, in the time's dtype.
+
+    Whole tick counts in integers, each time a single rounding `k * control_dt` (XLA would
+    reassociate float products of constants, `(k * save_every) * dt` -> `k * (save_every
+    dt)`, and label the same instant differently for different save intervals). A start
+    time known before tracing (a Python or NumPy number: every start from rest) gives the
+    times in NumPy, so that they reach the compiler as constants and what diffrax computes
+    from them folds away (its threshold `t1` minus 100 ULPs, a chain of 100 `nextafter`,
+    was a fifth of a figure's optimised program); a traced start (a continuation) computes
+    them in the program. Both round each product once in IEEE arithmetic: the same times.
+    """
+    concrete = isinstance(t0, int | float | np.number | np.ndarray)
+    xp = np if concrete else jnp
+    dtype = np.dtype(jnp.result_type(float))
+    n0 = xp.round(xp.asarray(t0, dtype=dtype) / dtype.type(grid.control_dt)).astype(np.int32)
+    steps = n0 + grid.save_every * xp.arange(grid.num_saves + 1, dtype=np.int32)
+    return steps.astype(dtype) * xp.asarray(grid.control_dt, dtype=dtype)
+
+
 def _trajectory(ts, samples, final: SimulationState, finite) -> Trajectory:
     """A Trajectory from the samples `(observations, senses)` and the final state."""
     obs, senses = samples
@@ -244,7 +259,7 @@ def _start(system: ClosedLoop, body: AbstractBody, initial_state):
     if isinstance(initial_state, SimulationState):
         return initial_state.t, (BodyState(*initial_state.body), initial_state.controller)
     body_state = body.initial_state() if initial_state is None else BodyState(*initial_state)
-    return jnp.asarray(0.0, dtype=float), (body_state, system.start(body_state))
+    return 0.0, (body_state, system.start(body_state))
 
 
 def _prepare(body: AbstractBody, controller: AbstractController | None):
@@ -354,7 +369,7 @@ def _batched_start(system: ClosedLoop, body: AbstractBody, initial_state, batch:
     if _is_single(body, body_state):
         body_state = broadcast(body_state)
     body_state = _to_last(body_state)
-    return jnp.asarray(0.0, dtype=float), (body_state, system.start(body_state))
+    return 0.0, (body_state, system.start(body_state))
 
 
 def _is_single(body: AbstractBody, state) -> bool:
