@@ -568,3 +568,53 @@ def test_new_terms_in_an_objective():
     )
     assert float(objective(tr)) == pytest.approx(1.0 + 2 * np.pi / 2, rel=ACCUMULATED_RTOL)
     assert jm.Objective(objective.to_dict()).spec == objective.spec
+
+
+def biped(contact, com_z=None):
+    """Two point feet (left at y = +0.1, right at y = -0.1) on the floor and a head 1 m up,
+    standing still facing +x, with the feet's contact flags `contact` `(samples, 2)` and the
+    centre of mass at heights `com_z` (default 0.5 throughout)."""
+    contact = np.asarray(contact, bool)
+    t = contact.shape[0]
+    points = np.broadcast_to([[0.0, 0.1, 0.0], [0.0, -0.1, 0.0], [0.0, 0.0, 1.0]], (t, 3, 3))
+    com_z = np.full(t, 0.5) if com_z is None else np.asarray(com_z, float)
+    return jm.Trajectory(
+        ts=jnp.linspace(0.0, 1.0, t),
+        points=jnp.asarray(points),
+        com=jnp.asarray(np.stack([np.zeros(t), np.zeros(t), com_z], axis=1)),
+        frame=jnp.asarray(np.broadcast_to(np.eye(3), (t, 3, 3))),
+        contact=jnp.asarray(np.concatenate([contact, np.zeros((t, 1), bool)], axis=1)),
+        finite=jnp.asarray(True),
+    )
+
+
+def test_steps_counts_alternating_touch_downs():
+    # Left lifts and lands, right lifts and lands, left lifts and lands twice (a chatter:
+    # one step), then both land at once (no step, and the alternation starts afresh), then
+    # left lands alone (a step again).
+    down = [(0, 0), (1, 1), (0, 1), (1, 1), (1, 0), (1, 1), (0, 1), (1, 1), (0, 1), (1, 1)]
+    down += [(0, 0), (1, 1), (0, 1), (1, 1)]
+    tr = biped(down)
+    assert value("steps", tr) == 4.0
+    assert value("steps", tr, cap=2.0) == 2.0
+    # The start counts as its next sample's state: feet resting without flags never land.
+    assert value("steps", biped([(0, 0)] + [(1, 1)] * 5)) == 0.0
+    # Only the steps before a fall count with until_fall (below 60% from the 5th sample).
+    z = [0.5] * 4 + [0.2] * (len(down) - 4)
+    assert value("steps", biped(down, z), until_fall=True) == 1.0
+    assert value("steps", biped(down, z)) == 4.0
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_steps_agrees_with_the_walk_checks_count(seed):
+    down = np.random.default_rng(seed).random((40, 2)) < 0.6
+    taken, _ = jm.checks.steps(np.asarray(biped(down).contact), ((0,), (1,)))
+    assert value("steps", biped(down)) == taken
+
+
+def test_heading_deviation_allows_a_margin():
+    veer = np.deg2rad([0, 10, 25, 40, 30, 15, 0, 0, 0, 0, 0])
+    tr = make(np.zeros((11, 3)), frames=np.stack([rot_z(a) for a in veer]))
+    allowed = value("heading_deviation", tr, allowed_degrees=15.0)
+    assert allowed == pytest.approx(np.deg2rad(25), rel=ACCUMULATED_RTOL)
+    assert value("heading_deviation", tr, allowed_degrees=45.0) == 0.0

@@ -7,6 +7,7 @@ Angles are in radians unless an option says degrees; lengths in metres; times in
 
 import math
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
@@ -101,6 +102,52 @@ def feet_forward(
     shift = trajectory.points[end, :, :2] - trajectory.points[0, :, :2]
     along = shift @ direction
     return jnp.sum(jnp.where(feet, along, 0.0)) / jnp.sum(feet)
+
+
+def _start_feet(trajectory: Trajectory, tolerance: float):
+    """The points that stand on the floor at the first sample (within `tolerance` m of the
+    lowest), and which of them are on the left of the centre of mass (the body's initial
+    left axis)."""
+    z0 = trajectory.points[0, :, 2]
+    feet = z0 <= jnp.min(z0) + tolerance
+    lateral = (trajectory.points[0] - trajectory.com[0]) @ trajectory.frame[0, :, 1]
+    return feet, lateral > 0
+
+
+@register_term("steps")
+def steps(
+    trajectory: Trajectory, tolerance: float = 0.01, until_fall: bool = False, cap: float = 20.0
+) -> Float[Array, ""]:
+    """Alternating steps, counted as the `walk` check counts them (at most `cap`): a touch-
+    down of one side's feet (up at one sample, down at the next) is a step when it is the only
+    side touching down there and the other side from the last step; a foot landing again,
+    or both sides at once, is none.
+
+    The feet are the points on the floor at the start (as `feet_forward`'s), each side the
+    ones left or right of the centre of mass along the initial left axis. `until_fall`:
+    only the steps before the body falls (see `forward`). A reward for stepping, which a body
+    that stands still or dives forward lacks.
+    """
+    feet, left = _start_feet(trajectory, tolerance)
+    contact = trajectory.contact
+    down = jnp.stack(
+        [jnp.any(contact & feet & left, axis=1), jnp.any(contact & feet & ~left, axis=1)], axis=1
+    )
+    down = down.at[0].set(down[1])  # resting on the floor at the start has no flag yet
+    landing = down[1:] & ~down[:-1]
+    counted = jnp.arange(landing.shape[0]) < _end(trajectory, until_fall) if until_fall else True
+    landing = landing & jnp.asarray(counted)[..., None]
+
+    def one(carry, row):
+        count, last = carry  # last: the side of the last step, -1 for none
+        both = row[0] & row[1]
+        side = jnp.where(row[0], 0, 1)
+        step = (row[0] ^ row[1]) & (side != last)
+        last = jnp.where(both, -1, jnp.where(step, side, last))
+        return (count + step.astype(count.dtype), last), None
+
+    (count, _), _ = jax.lax.scan(one, (jnp.zeros((), float), jnp.asarray(-1)), landing)
+    return jnp.minimum(count, cap)
 
 
 @register_term("standing_time")
@@ -270,10 +317,14 @@ def _signed_angles(a, b):
 
 
 @register_term("heading")
-def heading(trajectory: Trajectory, absolute: bool = False) -> Float[Array, ""]:
+def heading(
+    trajectory: Trajectory, absolute: bool = False, cap_degrees: float = math.inf
+) -> Float[Array, ""]:
     """Change of heading: the net signed turn of the body's forward axis seen from above,
     from the first to the last sample (rad, counter-clockwise positive; the second paper's
-    measure for Rex's turn). `absolute=True` gives its size whichever way it went.
+    measure for Rex's turn). `absolute=True` gives its size whichever way it went;
+    `cap_degrees` limits it to that angle either way (a turn of more earns no more, so that
+    a search for a turn has no reason to spin or tumble).
 
     The heading is the direction of the forward axis's horizontal part. It is unwrapped by
     summing the signed angles between consecutive samples (each must be under half a turn),
@@ -288,18 +339,22 @@ def heading(trajectory: Trajectory, absolute: bool = False) -> Float[Array, ""]:
     """
     h = trajectory.frame[:, :2, 0]
     net = jnp.sum(_signed_angles(h[:-1], h[1:]))
-    return jnp.abs(net) if absolute else net
+    net = jnp.abs(net) if absolute else net
+    cap = math.radians(cap_degrees)
+    return jnp.clip(net, -cap, cap)
 
 
 @register_term("heading_deviation")
-def heading_deviation(trajectory: Trajectory) -> Float[Array, ""]:
+def heading_deviation(trajectory: Trajectory, allowed_degrees: float = 0.0) -> Float[Array, ""]:
     """Largest angle between the heading at a saved instant and the initial heading (rad,
     0 to pi), as the `walk` check measures it: penalise it so that a walk keeps its
     direction throughout (`heading` and `net_yaw` see only the net turn, so a walk that
     veers and comes back costs them nothing). A sample whose forward axis is vertical (no
-    heading) counts 0."""
+    heading) counts 0. `allowed_degrees` is a free margin: only the deviation beyond it
+    counts (a walk may sway within it at no cost)."""
     h = trajectory.frame[:, :2, 0]
-    return jnp.max(jnp.abs(_signed_angles(h[:1], h)))
+    worst = jnp.max(jnp.abs(_signed_angles(h[:1], h)))
+    return jnp.maximum(worst - math.radians(allowed_degrees), 0.0)
 
 
 def _angle_between(a, b):
