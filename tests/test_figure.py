@@ -829,3 +829,48 @@ def test_bad_figures_raise_naming_the_rod_or_joint(kwargs, message):
     args.update(kwargs)
     with pytest.raises(ValueError, match=message):
         jm.Figure(args.pop("nodes"), args.pop("rods"), **args)
+
+
+# Node positions of a pose and of its mirror image agree to float64 rounding (m).
+MIRROR_ATOL = 1e-9
+
+
+@pytest.mark.parametrize(
+    ("name", "off_centre"),
+    # Free angles of midline rods hung from one side (Bob's torso roll, Rex's tail yaw):
+    # their mirror is a turn about the other pivot (see `Figure.mirror`), so they stay 0.
+    [("cujo", []), ("rex", [1]), ("bob", [1])],
+)
+def test_the_mirror_map_poses_the_mirror_image(name, off_centre):
+    fig = getattr(jm.figures, name)()
+    partner, sign = fig.mirror
+    rest = fig.pose()
+    reflect = lambda p: p * np.array([1.0, -1.0, 1.0])  # the builders are centred at y = 0
+    image = [int(np.argmin(np.linalg.norm(rest - q, axis=1))) for q in reflect(rest)]
+    assert sorted(image) == list(range(fig.num_nodes))
+    lo, hi = fig.ranges[:, 0], fig.ranges[:, 1]
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        angles = rng.uniform(lo, hi)
+        angles[off_centre] = 0.0
+        mirrored = np.asarray(sign) * angles[list(partner)]
+        assert np.all((lo <= mirrored) & (mirrored <= hi))
+        np.testing.assert_allclose(
+            reflect(fig.pose(angles)), fig.pose(mirrored)[image], atol=MIRROR_ATOL
+        )
+
+
+def test_planar_and_lopsided_figures_have_no_mirror():
+    assert jm.figures.star_man().mirror is None
+    assert jm.figures.beryl_biped().mirror is None
+    bob = jm.figures.bob()
+    joints = list(bob.joints)
+    hip = next(i for i, j in enumerate(joints) if j.rod == 3 and j.axis == (0.0, 1.0, 0.0))
+    joints[hip] = joints[hip]._replace(lo=-0.3)  # the left hip swings further than the right
+    lopsided = jm.Figure(
+        bob.nodes, bob.rods, masses=bob.masses, joints=joints, radii=bob.radii, feet=bob.feet
+    )
+    assert lopsided.mirror is None
+    # An off-centre midline rod's roll mirrors onto itself with its sign changed.
+    partner, sign = bob.mirror
+    assert (partner[1], sign[1]) == (1, -1.0)

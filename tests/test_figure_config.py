@@ -61,6 +61,12 @@ def test_shipped_figure_configs_use_figures_and_serial_search(name):
     assert e.search["algorithm"] == "serial_search"
 
 
+def test_a_config_asks_for_mirrored_gaits():
+    e = parse_config(figure_config(body={"figure": "rex"}, controller={"mirror": True}))
+    assert e.task.space.mirror == jm.figures.rex().mirror
+    assert parse_config(figure_config()).config["controller"]["mirror"] is False
+
+
 def test_beryl_tumble_is_not_periodic():
     e = load_config(ROOT / "configs" / "beryl_tumble.toml")
     assert e.task.space.t_per >= e.task.duration
@@ -107,6 +113,14 @@ def test_beryl_tumble_is_not_periodic():
             r"\[search\] has an unknown key 'batch'; allowed: algorithm, climbers",
         ),
         (figure_config(check={"motion": "hop"}), r"\[check\] motion = 'hop'; allowed"),
+        (
+            figure_config(controller={"mirror": "yes"}),
+            r"\[controller\] mirror = 'yes'; allowed: true or false",
+        ),
+        (
+            figure_config(controller={"mirror": True}),
+            r"\[controller\] .*figure 'star_man' is planar.*allowed: mirror = False",
+        ),
     ],
 )
 def test_bad_figure_configs_name_the_key_the_value_and_what_is_allowed(raw, message):

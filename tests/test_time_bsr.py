@@ -498,3 +498,59 @@ def test_a_figure_follows_its_active_rule():
     # No gravity or contact: the centre of mass stays where it was.
     com = np.asarray(traj.com, dtype=float)
     np.testing.assert_allclose(com, np.broadcast_to(com[0], com.shape), atol=1e-4)
+
+
+def mirrored_rex_controller():
+    partner, sign = REX.mirror
+    targets = np.random.default_rng(3).uniform(LO, HI, (3, REX.num_free))
+    return jm.TimeBSR([0.1, 0.3], targets, [0.05, 0.1, 0.2], 1.0, mirror=REX.mirror), partner, sign
+
+
+def test_a_mirrored_controller_repeats_its_half_period_mirrored():
+    c, partner, sign = mirrored_rex_controller()
+    targets = np.asarray(c.targets)
+    # Dyadic times: the phases are exact in float32.
+    for phase, rule in {0.0: 0, 0.0625: 0, 0.125: 1, 0.375: 2, 0.4375: 2}.items():
+        for period in range(3):
+            first, second = period + phase, period + 0.5 + phase
+            assert int(c.active(jnp.asarray(first))) == rule
+            assert int(c.active(jnp.asarray(second))) == rule + 3
+            target, tau = acting(c, jnp.asarray(first))
+            np.testing.assert_array_equal(np.asarray(target), targets[rule].astype(np.float32))
+            target, tau_m = acting(c, jnp.asarray(second))
+            expected = (np.asarray(sign) * targets[rule][list(partner)]).astype(np.float32)
+            np.testing.assert_array_equal(np.asarray(target), expected)
+            assert float(tau_m) == float(tau) == float(c.taus[rule])
+
+
+def test_a_mirrored_space_samples_and_mutates_within_the_half_period():
+    space = jm.TimeBSRSpace(
+        REX, num_rules=4, t_per=T_PER, tau_min=TAU_MIN, tau_max=TAU_MAX, mirror=True
+    )
+    c = space.sample(key=jr.key(0))
+    assert c.mirror == REX.mirror
+    for k in range(200):
+        c = space.perturb(c, key=jr.key(k))
+        splits = np.asarray(c.splits)
+        assert np.all((splits >= 0) & (splits <= T_PER / 2)) and np.all(np.diff(splits) >= 0)
+    assert c.mirror == REX.mirror
+    assert np.asarray(space.sample(key=jr.key(1)).splits).max() <= T_PER / 2
+    with pytest.raises(ValueError, match=r"figure 'star_man' is planar.*allowed: mirror = False"):
+        jm.TimeBSRSpace(jm.figures.star_man(), mirror=True)
+
+
+def test_a_mirrored_controller_round_trips_and_is_checked():
+    from jaxmotion.experiment import controller_from_dict, controller_to_dict
+
+    c, _, _ = mirrored_rex_controller()
+    back = controller_from_dict(controller_to_dict(c, "time_bsr"))
+    assert back.mirror == c.mirror
+    assert eqx.tree_equal(back, c)
+    with pytest.raises(ValueError, match=r"split 1 is 0.6; allowed: 0 <= split <= t_per / 2"):
+        jm.TimeBSR([0.1, 0.6], c.targets, c.taus, 1.0, mirror=REX.mirror)
+    with pytest.raises(ValueError, match=r"a permutation of the 10 free angles"):
+        jm.TimeBSR([0.1, 0.3], c.targets, c.taus, 1.0, mirror=((0,) * 10, (1.0,) * 10))
+    with pytest.raises(ValueError, match=r"is not figure 'bob'"):
+        jm.TimeBSR(np.zeros(0), np.zeros((1, 10)), [0.1], 1.0, mirror=REX.mirror).prepare(
+            jm.figures.bob()
+        )

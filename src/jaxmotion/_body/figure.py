@@ -322,6 +322,72 @@ class Figure(AbstractBody):
         return np.clip(0.0, r[:, 0], r[:, 1]) if len(r) else np.zeros(0)
 
     @property
+    def mirror(self) -> tuple[tuple[int, ...], tuple[float, ...]] | None:
+        """The figure's left-right mirror image as a map of its free angles, `(partner,
+        sign)`: the mirror image of a pose `th` (free angles) is the pose
+        `sign[i] * th[partner[i]]`. `None` for a planar figure (it has no left and right) or
+        one that is not left-right symmetric.
+
+        The mirror is the reflection across the vertical x-z plane through the middle of
+        the rest pose (`y -> -y` for a figure centred at y = 0; the builders' figures face
+        +x, so it swaps their left and right). Joint
+        angle `i`, on the rod ending at node `n` about axis `a`, mirrors to the angle, in
+        the same place of its rod's joints, on the rod ending at `n`'s reflection about the
+        reflected axis `a'` (or `-a'`): a reflection turns a rotation by `th` into one by
+        `-th` about the reflected axis, so a pitch (about y) keeps its sign and a roll or
+        yaw (about x or z) changes it. A rod ending on the midline (a torso, a tail, a neck)
+        is its own mirror. The figure is symmetric when every joint has such a partner with
+        the mirrored range (a fixed angle the mirrored angle) and every node a reflection
+        (lengths within 1e-6 of the figure's size).
+
+        The map is exact for rods whose joints pivot on the midline or in mirrored places,
+        and for pitch about any pivot. A midline rod hung from one side (Bob's torso from
+        his left hip, Rex's tail from his right) rolls or yaws about its own pivot, so the
+        mirrored angle turns it about the mirror of that pivot only up to a sideways shift
+        (the pivots' distance times the angle, a few cm at those joints' ranges): the map
+        is then the mirror image of the joint commands, not exactly of the pose.
+        """
+        if self.planar:
+            return None
+        nodes = np.array(self.nodes)
+        tol = 1e-6 * max(1.0, float(np.ptp(nodes, axis=0).max()))
+        centre = 0.5 * (nodes[:, 1].min() + nodes[:, 1].max())
+        reflected = nodes * np.array([1.0, -1.0, 1.0]) + np.array([0.0, 2 * centre, 0.0])
+        image = []
+        for p in reflected:
+            near = np.flatnonzero(np.linalg.norm(nodes - p, axis=1) <= tol)
+            if len(near) != 1:
+                return None
+            image.append(int(near[0]))
+        rod_ending = {d: k for k, (_, d) in enumerate(self.rods)}
+        on_rod: dict[int, list[int]] = {}
+        for j, joint in enumerate(self.joints):
+            on_rod.setdefault(joint.rod, []).append(j)
+        partner = {}
+        sign = {}
+        for j, joint in enumerate(self.joints):
+            rod = rod_ending.get(image[self.rods[joint.rod][1]])
+            twins = on_rod.get(rod, []) if rod is not None else []
+            place = on_rod[joint.rod].index(j)
+            if len(twins) != len(on_rod[joint.rod]):
+                return None
+            twin = self.joints[twins[place]]
+            axis = np.array(joint.axis) * np.array([1.0, -1.0, 1.0])
+            along = float(np.dot(axis, twin.axis))
+            if abs(abs(along) - 1.0) > 1e-6:
+                return None
+            s = -1.0 if along > 0 else 1.0
+            lo, hi = sorted((s * joint.lo, s * joint.hi))
+            if abs(lo - twin.lo) > 1e-9 or abs(hi - twin.hi) > 1e-9:
+                return None
+            partner[j], sign[j] = twins[place], s
+        index = {j: i for i, j in enumerate(self.free)}
+        return (
+            tuple(index[partner[j]] for j in self.free),
+            tuple(sign[j] for j in self.free),
+        )
+
+    @property
     def parents(self) -> tuple[int, ...]:
         """Parent rod of each rod (-1 for the root): the earliest rod reaching its proximal
         node."""

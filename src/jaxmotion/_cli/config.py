@@ -206,6 +206,7 @@ TIME_BSR = {
     "tau_max": Key("number", None, _positive, "> 0 (s; default duration / 4)"),
     "creep": Key("number", 0.1, lambda v: 0 < v <= 1, "in (0, 1]"),
     "reinit_probability": Key("number", 1 / 3, lambda v: 0 <= v <= 1, "in [0, 1]"),
+    "mirror": Key("bool", False),
 }
 
 SENSE_BSR = {

@@ -25,16 +25,26 @@ class TimeBSR(AbstractController):
     once (not periodic: the second paper's Beryl tumble). The rule is chosen at each control
     tick and held until the next (its state is the active rule's index).
 
-    **Fields:** `splits` `(R - 1,)` the segment boundaries in `[0, t_per]`, ascending (rule 0
-    owns `[0, splits[0])`, rule r `[splits[r - 1], splits[r])`, the last rule up to `t_per`);
-    `targets` `(R, num_free)` target joint angles (radians); `taus` `(R,)` time constants (s);
-    `t_per` the period (s).
+    **Mirrored gaits** (`mirror`, not in the paper): a walk is the same half-stride twice,
+    the second time with left and right swapped. With `mirror` set (the figure's
+    `Figure.mirror` map, `(partner, sign)`), the rules share the first half of each period,
+    `[0, t_per / 2)` (the splits lie in `[0, t_per / 2]`), and over the second half the same
+    rules act again with their target poses mirrored: angle `i` moves toward
+    `sign[i] * targets[r, partner[i]]`. The search then looks only among gaits whose
+    two halves are mirror images, which keeps a walk on course.
+
+    **Fields:** `splits` `(R - 1,)` the segment boundaries in `[0, t_per]` (with `mirror`,
+    `[0, t_per / 2]`), ascending (rule 0 owns `[0, splits[0])`, rule r `[splits[r - 1],
+    splits[r])`, the last rule up to the end of the period or half period); `targets` `(R,
+    num_free)` target joint angles (radians); `taus` `(R,)` time constants (s); `t_per` the
+    period (s); `mirror` (static) `None` or the mirror map.
     """
 
     splits: Float[Array, " R-1"]
     targets: Float[Array, "R num_free"]
     taus: Float[Array, " R"]
     t_per: Float[Array, ""]
+    mirror: tuple[tuple[int, ...], tuple[float, ...]] | None = eqx.field(static=True)
 
     supports_batch_last: ClassVar[bool] = True
 
@@ -44,13 +54,16 @@ class TimeBSR(AbstractController):
         targets: Float[ArrayLike, "R num_free"],
         taus: Float[ArrayLike, " R"],
         t_per: float | Float[ArrayLike, ""],
+        mirror=None,
     ):
+        mirror = _mirror_map(mirror, np.shape(targets)[-1])
         if not any(isinstance(x, jax.core.Tracer) for x in (splits, targets, taus, t_per)):
-            _check(splits, targets, taus, t_per)
+            _check(splits, targets, taus, t_per, mirror is not None)
         self.splits = jnp.asarray(splits, dtype=float)
         self.targets = jnp.asarray(targets, dtype=float)
         self.taus = jnp.asarray(taus, dtype=float)
         self.t_per = jnp.asarray(t_per, dtype=float)
+        self.mirror = mirror
 
     @property
     def num_rules(self) -> int:
@@ -64,14 +77,27 @@ class TimeBSR(AbstractController):
                 f"TimeBSR has targets for {self.targets.shape[-1]} joint angles but figure "
                 f"{body.name!r} has {body.num_free} free angles"
             )
+        if self.mirror is not None and self.mirror != body.mirror:
+            raise ValueError(
+                f"TimeBSR.mirror = {self.mirror!r} is not figure {body.name!r}'s mirror map "
+                f"(Figure.mirror = {body.mirror!r})"
+            )
         return None
 
     def active(self, t: Float[Array, ""]):
-        """Index of the rule active at time `t`."""
+        """Index of the rule active at time `t` (with `mirror`, plus R over the second half
+        of the period, where the rules act mirrored)."""
         phase = jnp.mod(t, self.t_per)
+        second = None
+        if self.mirror is not None:
+            half = 0.5 * self.t_per
+            second = phase >= half
+            phase = jnp.where(second, phase - half, phase)
         index = jnp.zeros(jnp.shape(phase), dtype=jnp.int32)
         for r in range(self.num_rules - 1):
             index = index + (phase >= self.splits[r]).astype(jnp.int32)
+        if second is not None:
+            index = index + self.num_rules * second.astype(jnp.int32)
         return index
 
     def init(self, senses, plan) -> ControllerState:
@@ -88,15 +114,47 @@ class TimeBSR(AbstractController):
         del t, plan
         # A chain of selects (elementwise under vmap) rather than an index (a gather).
         index = state.discrete
+        rule = index if self.mirror is None else jnp.mod(index, self.num_rules)
         target, tau = self.targets[0], self.taus[0]
         for r in range(1, self.num_rules):
-            on = index == r
+            on = rule == r
             target = jnp.where(on, self.targets[r], target)
             tau = jnp.where(on, self.taus[r], tau)
+        if self.mirror is not None:
+            partner, sign = self.mirror
+            mirrored = jnp.stack([s * target[p] for p, s in zip(partner, sign, strict=True)])
+            target = jnp.where(index >= self.num_rules, mirrored, target)
         return target, tau
 
 
-def _check(splits, targets, taus, t_per) -> None:
+def _mirror_map(mirror, num_free: int):
+    """`mirror` as a `(partner, sign)` pair of tuples (lists, as JSON gives them, are
+    accepted), checked against `num_free` angles; `None` stays `None`."""
+    if mirror is None:
+        return None
+    try:
+        partner, sign = mirror
+        partner = tuple(int(p) for p in partner)
+        sign = tuple(float(s) for s in sign)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"TimeBSR.mirror = {mirror!r}; allowed: None or (partner, sign), a figure's "
+            "Figure.mirror"
+        ) from None
+    if (
+        len(partner) != num_free
+        or len(sign) != num_free
+        or sorted(partner) != list(range(num_free))
+        or any(s not in (-1.0, 1.0) for s in sign)
+    ):
+        raise ValueError(
+            f"TimeBSR.mirror = {mirror!r}; allowed: a permutation of the {num_free} free "
+            "angles and a sign of +-1 for each (a figure's Figure.mirror)"
+        )
+    return partner, sign
+
+
+def _check(splits, targets, taus, t_per, mirrored: bool = False) -> None:
     sp = np.asarray(splits, dtype=float)
     tg = np.asarray(targets, dtype=float)
     ta = np.asarray(taus, dtype=float)
@@ -110,9 +168,10 @@ def _check(splits, targets, taus, t_per) -> None:
         raise ValueError(f"TimeBSR needs R - 1 = {ta.size - 1} splits; got shape {sp.shape}")
     if tp.shape != () or not np.isfinite(tp) or tp <= 0:
         raise ValueError(f"TimeBSR.t_per = {t_per!r}; allowed: a number > 0 (s)")
+    span, name = (tp / 2, "t_per / 2") if mirrored else (tp, "t_per")
     for r, v in enumerate(sp):
-        if not (np.isfinite(v) and 0 <= v <= tp):
-            raise ValueError(f"split {r} is {v:g}; allowed: 0 <= split <= t_per = {tp:g}")
+        if not (np.isfinite(v) and 0 <= v <= span):
+            raise ValueError(f"split {r} is {v:g}; allowed: 0 <= split <= {name} = {span:g}")
     if np.any(np.diff(sp) < 0):
         raise ValueError(f"TimeBSR.splits = {sp.tolist()}; allowed: ascending")
     for r, v in enumerate(ta):
@@ -153,8 +212,15 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
     and no other rule's start or response changes. The paper gives no
     probability for the two; the default 1/3 reinitialise, 2/3 creep is its Figure 5's mix.
 
+    **Mirrored gaits:** `mirror=True` draws and mutates mirrored controllers (see
+    `TimeBSR`): the split points lie in `[0, t_per / 2]` and every controller carries the
+    figure's `Figure.mirror` map.
+
     **Arguments:** `figure`; `num_rules` R (the paper: 4); `t_per` (s); `tau_min`, `tau_max`
-    (s); `creep`, `reinit_probability`.
+    (s); `creep`, `reinit_probability`; `mirror`.
+
+    **Raises:** `ValueError` for a bad argument, or `mirror=True` for a figure without a
+    mirror image (planar, or not left-right symmetric).
     """
 
     num_free: int = eqx.field(static=True)
@@ -165,6 +231,7 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
     tau_max: float = eqx.field(static=True)
     creep: float = eqx.field(static=True)
     reinit_probability: float = eqx.field(static=True)
+    mirror: tuple[tuple[int, ...], tuple[float, ...]] | None = eqx.field(static=True)
 
     def __init__(
         self,
@@ -175,6 +242,7 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
         tau_max: float = 0.5,
         creep: float = 0.1,
         reinit_probability: float = 1 / 3,
+        mirror: bool = False,
     ):
         if not isinstance(figure, Figure):
             raise TypeError(f"TimeBSRSpace needs a Figure; got {type(figure).__name__}")
@@ -206,10 +274,24 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
         self.tau_max = float(tau_max)
         self.creep = float(creep)
         self.reinit_probability = float(reinit_probability)
+        if not isinstance(mirror, bool):
+            raise ValueError(f"TimeBSRSpace.mirror = {mirror!r}; allowed: True or False")
+        if mirror and figure.mirror is None:
+            why = "is planar" if figure.planar else "is not left-right symmetric"
+            raise ValueError(
+                f"TimeBSRSpace.mirror = True but figure {figure.name!r} {why}, so it has no "
+                "mirror image (Figure.mirror is None); allowed: mirror = False"
+            )
+        self.mirror = figure.mirror if mirror else None
 
     @property
     def family(self) -> str:
         return "time_bsr"
+
+    @property
+    def span(self) -> float:
+        """The stretch of each period the rules share: `t_per`, or `t_per / 2` mirrored."""
+        return self.t_per / 2 if self.mirror is not None else self.t_per
 
     def _lo_hi(self):
         return joint_bounds(self.ranges)
@@ -220,9 +302,9 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
     def sample(self, *, key: PRNGKeyArray) -> TimeBSR:
         r, f = self.num_rules, self.num_free
         u = jr.uniform(key, (r - 1 + r * f + r,))
-        splits = jnp.sort(u[: r - 1] * self.t_per)
+        splits = jnp.sort(u[: r - 1] * self.span)
         targets, taus = self._rule(u[r - 1 : r - 1 + r * f].reshape(r, f), u[r - 1 + r * f :])
-        return TimeBSR(splits, targets, taus, self.t_per)
+        return TimeBSR(splits, targets, taus, self.t_per, self.mirror)
 
     def perturb(self, controller: TimeBSR, *, key: PRNGKeyArray, motion=None) -> TimeBSR:
         del motion
@@ -253,8 +335,8 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
             old = splits[index]
             moved = jnp.where(
                 reinit,
-                u_start * self.t_per,
-                jnp.clip(old + self.creep * self.t_per * (2.0 * u_start - 1.0), 0.0, self.t_per),
+                u_start * self.span,
+                jnp.clip(old + self.creep * self.span * (2.0 * u_start - 1.0), 0.0, self.span),
             )
             starts = jnp.where(rule > 0, splits.at[index].set(moved), splits)
             # Rules 1..R-1 are kept in the order of their starts and keep their own start:
@@ -264,7 +346,7 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
             splits = starts[order]
             targets = targets.at[1:].set(targets[1:][order])
             taus = taus.at[1:].set(taus[1:][order])
-        return TimeBSR(splits, targets, taus, controller.t_per)
+        return TimeBSR(splits, targets, taus, controller.t_per, self.mirror)
 
     def trainable(self, controller: TimeBSR):
         """Split points, targets and time constants are refined by gradients; the period
@@ -279,7 +361,7 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
             lambda c: (c.splits, c.targets, c.taus),
             controller,
             (
-                jnp.sort(jnp.clip(controller.splits, 0.0, self.t_per)),
+                jnp.sort(jnp.clip(controller.splits, 0.0, self.span)),
                 jnp.clip(controller.targets, lo, hi),
                 jnp.clip(controller.taus, self.tau_min, self.tau_max),
             ),
