@@ -65,6 +65,12 @@ def test_a_config_asks_for_mirrored_gaits():
     e = parse_config(figure_config(body={"figure": "rex"}, controller={"mirror": True}))
     assert e.task.space.mirror == jm.figures.rex().mirror
     assert parse_config(figure_config()).config["controller"]["mirror"] is False
+    # Sense-based rules with mirror twins.
+    sense = {"family": "sense_bsr", "mirror": True}
+    e = parse_config(figure_config(body={"figure": "bob"}, controller=sense))
+    assert e.task.space.mirror == jm.figures.bob().sense_mirror
+    with pytest.raises(ConfigError, match=r"\[controller\] .*figure 'star_man' is planar"):
+        parse_config(figure_config(controller=sense))
 
 
 def test_beryl_tumble_is_not_periodic():

@@ -2,6 +2,7 @@
 and 4.2, Figure 2, Table 2): the score, the rule choice with hysteresis, the low-pass filter,
 sampling, mutation and the relevance heuristic."""
 
+import json
 import math
 
 import equinox as eqx
@@ -361,3 +362,256 @@ def test_trainable_and_project():
     p = space.project(wild)
     assert float(p.centres.max()) <= 1.5 and float(p.sides.max()) <= 4.0
     assert float(p.taus.min()) >= 0.05
+
+
+# ------------------------------------------------------------------ mirror twins
+
+CUJO = jm.figures.cujo()  # exactly left-right symmetric (its mass too)
+
+
+def mirror_state(fig, rng):
+    """A random state of `fig` (moving, turned, legs in the floor so contacts push) and its
+    mirror image across the world's x-z plane."""
+    partner, sign = fig.mirror
+    lo, hi = fig.ranges[:, 0], fig.ranges[:, 1]
+    angles = rng.uniform(lo, hi)
+    rates = rng.normal(0.0, 2.0, fig.num_free)
+    q = rng.normal(0.0, 1.0, 4) * np.array([1.0, 0.2, 0.2, 0.2]) + np.array([3.0, 0, 0, 0])
+    q = q / np.linalg.norm(q)
+    com = np.array([0.3, 0.1, 0.37])
+    velocity, spin = rng.normal(0.0, 1.0, 3), rng.normal(0.0, 2.0, 3)
+    flip = np.array([1.0, -1.0, 1.0])
+    state = fig.state(
+        com=com,
+        velocity=velocity,
+        orientation=q,
+        angular_velocity=spin,
+        angles=angles,
+        rates=rates,
+    )
+    # A reflection M = diag(1, -1, 1): positions and velocities M x, the root's rotation
+    # M R M (the quaternion (w, -x, y, -z)), an angular velocity (axial) -M w.
+    mirrored = fig.state(
+        com=flip * com,
+        velocity=flip * velocity,
+        orientation=q * np.array([1.0, -1.0, 1.0, -1.0]),
+        angular_velocity=-flip * spin,
+        angles=np.asarray(sign) * angles[list(partner)],
+        rates=np.asarray(sign) * rates[list(partner)],
+    )
+    return state, mirrored
+
+
+# Senses of a state and of its mirror image, float32 arithmetic on values in [0, 1].
+MIRROR_SENSE_ATOL = 1e-5
+
+
+def test_the_sense_map_reads_the_senses_of_the_mirror_image():
+    """`Figure.sense_mirror` applied to the senses of a state gives the senses of its mirror
+    image, sense by sense (velocities, spin, up vector, contacts, impulses, angles)."""
+    dynamics, world = CUJO.dynamics(), jm.World(gravity=9.81, friction=0.8)
+    source, flip = CUJO.sense_mirror
+    assert sorted(source) == list(range(CUJO.num_senses))
+    twin = jm.SenseBSR(
+        np.zeros((1, CUJO.num_senses)),
+        np.ones((1, CUJO.num_senses)),
+        np.zeros((1, CUJO.num_free)),
+        [0.1],
+        mirror=CUJO.sense_mirror,
+    )
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        state, mirrored = mirror_state(CUJO, rng)
+        s = np.asarray(dynamics.senses(state, world, 4e-3))
+        m = np.asarray(dynamics.senses(mirrored, world, 4e-3))
+        assert np.ptp(s[2:7]) > 0.05 and s[10 : 10 + CUJO.num_nodes].max() > 0  # moving, pushed
+        np.testing.assert_allclose(
+            np.asarray(twin.mirrored_senses(jnp.asarray(s))), m, atol=MIRROR_SENSE_ATOL
+        )
+        np.testing.assert_allclose(
+            np.where(flip, 1 - s[list(source)], s[list(source)]), m, atol=MIRROR_SENSE_ATOL
+        )
+
+
+def test_bob_rex_and_cujo_have_sense_maps_and_planar_figures_none():
+    for fig in (jm.figures.bob(), jm.figures.rex(), CUJO):
+        source, flip = fig.sense_mirror
+        names = fig.sense_names
+        # An involution that keeps a sense's kind (contact to contact, angle to angle).
+        assert all(source[source[j]] == j for j in range(fig.num_senses))
+        kind = lambda name: name.split("[")[0]
+        assert all(kind(names[source[j]]) == kind(names[j]) for j in range(fig.num_senses))
+        flipped = {names[j] for j in range(10) if flip[j]}
+        assert flipped == {"velocity_left", "spin_forward", "spin_up", "up_left"}
+    assert jm.figures.star_man().sense_mirror is None
+    with pytest.raises(ValueError, match=r"mirror = True but figure 'star_man' is planar"):
+        jm.SenseBSRSpace(STAR, mirror=True)
+
+
+def with_twins_as_rules(c: jm.SenseBSR, fig) -> jm.SenseBSR:
+    """The plain 2R-rule controller that a mirrored R-rule one stands for: rules 0..R-1,
+    then each rule's twin as a rule of its own (its rectangle over the mirrored senses moved
+    onto the senses, its targets mirrored)."""
+    source, flip = (np.asarray(x) for x in c.mirror)
+    centres, sides = np.asarray(c.centres), np.asarray(c.sides)
+    twin_centres, twin_sides = np.empty_like(centres), np.empty_like(sides)
+    twin_centres[:, source] = np.where(flip, 1.0 - centres, centres)
+    twin_sides[:, source] = sides
+    partner, sign = fig.mirror
+    targets = np.asarray(c.targets)
+    twin_targets = np.asarray(sign) * targets[:, list(partner)]
+    return jm.SenseBSR(
+        np.concatenate([centres, twin_centres]),
+        np.concatenate([sides, twin_sides]),
+        np.concatenate([targets, twin_targets]),
+        np.concatenate([np.asarray(c.taus)] * 2),
+        filter_time=c.filter_time,
+    )
+
+
+# Scores of a twin and of the plain rule it stands for: `1 - S` against `c` or `S` against
+# `1 - c`, the same in real arithmetic, float32 rounding apart (scores of order 10-50).
+TWIN_SCORE_ATOL = 1e-4
+
+
+def test_mirror_twins_act_as_rules_of_their_own():
+    """A mirrored controller chooses and acts as the plain controller holding each rule and
+    each rule's twin (rule R + r: the mirrored rectangle, the mirrored pose) would, tick by
+    tick over random senses; in a simulation, twins do become active."""
+    space = jm.SenseBSRSpace(CUJO, num_rules=4, filter_time=0.02, mirror=True)
+    c = space.sample(key=jr.key(0))
+    senses = jr.uniform(jr.key(1), (40, CUJO.num_senses))
+    mirrored = jax.vmap(c.mirrored_senses)(senses)
+    # Rules 1-3 around senses of ticks 5, 15 and (mirrored) 25, sides 1: rules and twins act.
+    c = eqx.tree_at(
+        lambda x: (x.centres, x.sides),
+        c,
+        (
+            c.centres.at[1].set(senses[5]).at[2].set(senses[15]).at[3].set(mirrored[25]),
+            jnp.full_like(c.sides, 1.0),
+        ),
+    )
+    plain = with_twins_as_rules(c, CUJO)
+    plan, plain_plan = c.prepare(CUJO), plain.prepare(CUJO)
+    np.testing.assert_allclose(
+        np.asarray(jax.vmap(lambda s: c.scores(s, plan))(senses)),
+        np.asarray(jax.vmap(lambda s: plain.scores(s, plain_plan))(senses)),
+        atol=TWIN_SCORE_ATOL,
+    )
+    a, b = c.init(senses[0], plan), plain.init(senses[0], plain_plan)
+    chosen = []
+    for k in range(1, 40):
+        t = jnp.asarray(k * 5e-3)
+        a, b = c.update(t, a, senses[k], plan), plain.update(t, b, senses[k], plain_plan)
+        assert int(a.discrete.active) == int(b.discrete.active)
+        for x, y in zip(c.actuation(t, a, plan), plain.actuation(t, b, plain_plan), strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+        chosen.append(int(a.discrete.active))
+    assert any(r >= 4 for r in chosen) and any(0 < r < 4 for r in chosen), chosen
+    # In a simulation: rule 1 holds from the rest pose (its rectangle around the rest's
+    # senses) and poses the legs unevenly; rule 2's twin is placed on the mirror image of
+    # where that motion goes (its rectangle around the mirrored senses of a later sample),
+    # so the twin, not rule 2 itself, takes over there.
+    task = jm.Task(
+        body=CUJO,
+        world=jm.World(gravity=9.81, friction=0.8),
+        space=space,
+        objective=jm.Objective({"forward": 1.0}),
+        duration=0.5,
+        dt=0.005,
+    )
+    rest = CUJO.dynamics().senses(CUJO.state(), task.world, 0.005)
+    c = eqx.tree_at(
+        lambda x: (x.centres, x.sides), c, (c.centres.at[1].set(rest), c.sides.at[2].set(0.4))
+    )
+    sensed = lambda c: task.trajectories(jax.tree_util.tree_map(lambda x: x[None], c), senses=True)
+    later = sensed(c).senses[0, 10]
+    c = eqx.tree_at(lambda x: x.centres, c, c.centres.at[2].set(c.mirrored_senses(later)))
+    trajectory = sensed(c)
+    active = np.asarray(c.active_rules(trajectory.senses[0]))
+    assert {1, 6} <= set(active.tolist()), active
+    assert np.all(np.isfinite(np.asarray(trajectory.points)))
+
+
+def test_a_batch_last_stack_of_mirrored_controllers_acts_as_each_alone():
+    space = jm.SenseBSRSpace(CUJO, num_rules=4, filter_time=0.03, mirror=True)
+    controllers = jax.vmap(lambda k: space.sample(key=k))(jr.split(jr.key(3), 7))
+    senses = jr.uniform(jr.key(4), (5, 7, CUJO.num_senses))
+    # Rule 1 around the senses, rule 2 around their mirror image: rules and twins act.
+    twin = jax.tree_util.tree_map(lambda a: a[0], controllers)
+    mirrored = jax.vmap(jax.vmap(twin.mirrored_senses))(senses)
+    controllers = eqx.tree_at(
+        lambda c: c.centres,
+        controllers,
+        controllers.centres.at[:, 1].set(senses[1]).at[:, 2].set(mirrored[3]),
+    )
+    controllers = eqx.tree_at(lambda c: c.sides, controllers, jnp.full_like(controllers.sides, 2.0))
+    plans = jax.vmap(lambda c: c.prepare(CUJO))(controllers)
+    last = lambda tree: jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 0, -1), tree)
+    one = jax.vmap(lambda c, p, s: c.init(s, p))(controllers, plans, senses[0])
+    stack = last(controllers).init(senses[0].T, last(plans))
+    seen = set()
+    for k in range(1, 5):
+        t = jnp.asarray(k * 4e-3)
+        one = jax.vmap(lambda c, st, s, p, t=t: c.update(t, st, s, p))(
+            controllers, one, senses[k], plans
+        )
+        stack = last(controllers).update(t, stack, senses[k].T, last(plans))
+        np.testing.assert_array_equal(np.asarray(last(one).discrete.active), stack.discrete.active)
+        act_one = jax.vmap(lambda c, st, p, t=t: c.actuation(t, st, p))(controllers, one, plans)
+        act_stack = last(controllers).actuation(t, stack, last(plans))
+        for a, b in zip(act_one, act_stack, strict=True):
+            np.testing.assert_array_equal(np.moveaxis(np.asarray(b), -1, 0), np.asarray(a))
+        seen |= set(np.asarray(stack.discrete.active).tolist())
+    assert any(r >= 4 for r in seen) and any(0 < r < 4 for r in seen)  # twins and rules
+
+
+def test_a_twins_pose_is_its_rules_mirrored_and_soft_choice_blends_twins():
+    c = jm.SenseBSRSpace(CUJO, num_rules=3, mirror=True).sample(key=jr.key(5))
+    partner, sign = CUJO.mirror
+    plan = c.prepare(CUJO)
+    state = c.init(jnp.full(CUJO.num_senses, 0.5), plan)
+    for r in range(2 * c.num_rules):
+        st = state._replace(
+            discrete=eqx.tree_at(lambda d: d.active, state.discrete, jnp.asarray(r))
+        )
+        target, tau = c.actuation(0.0, st, plan)
+        rule = np.asarray(c.targets[r % 3])
+        want = rule if r < 3 else np.asarray(sign) * rule[list(partner)]
+        np.testing.assert_array_equal(np.asarray(target), want)
+        assert float(tau) == float(c.taus[r % 3])
+    # The soft choice with all its weight on twin 4 poses twin 4's targets.
+    soft = c.smoothed(0.1)
+    assert soft.mirror == c.mirror
+    weights = jnp.zeros(6).at[4].set(1.0)
+    st = state._replace(discrete=eqx.tree_at(lambda d: d.active, state.discrete, weights))
+    target, _ = soft.actuation(0.0, st, plan)
+    np.testing.assert_allclose(
+        np.asarray(target), np.asarray(sign) * np.asarray(c.targets[1])[list(partner)], atol=EXACT
+    )
+
+
+def test_a_mirrored_space_samples_and_mutates_mirrored_controllers():
+    space = jm.SenseBSRSpace(CUJO, num_rules=3, mirror=True)
+    c = space.sample(key=jr.key(0))
+    assert c.mirror == CUJO.sense_mirror and c.num_choices == 6
+    assert space.perturb(c, key=jr.key(1)).mirror == c.mirror
+    assert space.reinitialise(c, key=jr.key(2)).mirror == c.mirror
+    assert jm.SenseBSRSpace(CUJO).sample(key=jr.key(0)).mirror is None
+
+
+def test_a_mirrored_controller_round_trips_and_is_checked():
+    from jaxmotion.experiment import controller_from_dict, controller_to_dict
+
+    c = jm.SenseBSRSpace(CUJO, num_rules=2, mirror=True).sample(key=jr.key(0))
+    back = controller_from_dict(json.loads(json.dumps(controller_to_dict(c, "sense_bsr"))))
+    assert back.mirror == c.mirror
+    np.testing.assert_array_equal(np.asarray(back.centres), np.asarray(c.centres))
+    identity = (tuple(range(CUJO.num_senses)), (False,) * CUJO.num_senses)  # an involution
+    with pytest.raises(ValueError, match=r"is not figure 'cujo''s sense map"):
+        jm.SenseBSR(c.centres, c.sides, c.targets, c.taus, mirror=identity).prepare(CUJO)
+    source, flip = CUJO.sense_mirror
+    cycled = [1, 3, 0, 2, *source[4:]]  # a permutation, not its own inverse
+    for bad in ((cycled, flip), (source, flip[:-1]), (source, [1] * len(flip)), "yes"):
+        with pytest.raises(ValueError, match=r"SenseBSR.mirror = .*allowed: None or"):
+            jm.SenseBSR(c.centres, c.sides, c.targets, c.taus, mirror=bad)

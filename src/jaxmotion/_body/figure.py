@@ -347,6 +347,55 @@ class Figure(AbstractBody):
         (the pivots' distance times the angle, a few cm at those joints' ranges): the map
         is then the mirror image of the joint commands, not exactly of the pose.
         """
+        images = self._mirror_images()
+        if images is None:
+            return None
+        _, partner, sign = images
+        index = {j: i for i, j in enumerate(self.free)}
+        return (
+            tuple(index[partner[j]] for j in self.free),
+            tuple(sign[j] for j in self.free),
+        )
+
+    @property
+    def sense_mirror(self) -> tuple[tuple[int, ...], tuple[bool, ...]] | None:
+        """The left-right mirror image (`Figure.mirror`'s) as a map of the 3D senses,
+        `(source, flip)`: the senses `S` of a motion read, in its mirror image, as
+        `S'[j] = 1 - S[source[j]]` where `flip[j]`, else `S[source[j]]`. `None` where
+        `Figure.mirror` is (a planar or lopsided figure), or when the figure's frame does
+        not keep its left axis across the mirror plane.
+
+        The reflection `y -> -y` (the figure frame's left axis) maps the centre of mass's
+        velocity `(f, l, u)` to `(f, -l, u)`, the world's up vector in the figure frame
+        alike, and the root's angular velocity, an axial vector, to `(-f, l, -u)`; a
+        normalised sense `signed(x)` of a negated `x` reads `1 - signed(x)`. Each node's
+        contact force and impulse is its reflection's. A free angle is `sign[i]` times its
+        partner's (`Figure.mirror`); its range is its partner's mirrored, so its sense is
+        the partner's, or one minus it where `sign[i] = -1`. The map is its own inverse.
+        """
+        images = self._mirror_images()
+        if images is None:
+            return None
+        frame = np.array(self.frame)
+        flip_y = np.diag([1.0, -1.0, 1.0])
+        if not np.allclose(flip_y @ frame, frame @ flip_y, atol=1e-9):
+            return None
+        image, _, _ = images
+        partner, sign = self.mirror
+        n, f = self.num_nodes, self.num_free
+        # height; velocity f, l, u; spin f, l, u; up f, l, u.
+        source = list(range(10))
+        flip = [False, False, True, False, True, False, True, False, True, False]
+        for start in (10, 10 + n):  # contact[i], impulse[i]
+            source += [start + image[i] for i in range(n)]
+            flip += [False] * n
+        source += [10 + 2 * n + partner[k] for k in range(f)]
+        flip += [sign[k] < 0 for k in range(f)]
+        return tuple(source), tuple(flip)
+
+    def _mirror_images(self):
+        """`(image, partner, sign)`: each node's reflection, each joint's mirror partner and
+        sign (see `mirror`); `None` for a planar or lopsided figure."""
         if self.planar:
             return None
         nodes = np.array(self.nodes)
@@ -381,11 +430,7 @@ class Figure(AbstractBody):
             if abs(lo - twin.lo) > 1e-9 or abs(hi - twin.hi) > 1e-9:
                 return None
             partner[j], sign[j] = twins[place], s
-        index = {j: i for i, j in enumerate(self.free)}
-        return (
-            tuple(index[partner[j]] for j in self.free),
-            tuple(sign[j] for j in self.free),
-        )
+        return image, partner, sign
 
     @property
     def parents(self) -> tuple[int, ...]:

@@ -223,6 +223,7 @@ SENSE_BSR = {
         lambda v: v in ("corner", "contain", "none"),
         '"corner" (2D default), "contain" (3D default) or "none"',
     ),
+    "mirror": Key("bool", False),
 }
 
 # The controller families of each kind of body, the default first.

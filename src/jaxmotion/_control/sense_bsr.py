@@ -66,10 +66,21 @@ class SenseBSR(AbstractController):
     last tick, starting from the senses of the starting state; `filter_time = 0` is no
     filter.
 
+    **Mirror twins** (`mirror`, not in the paper): a walk is a half-stride and its mirror
+    image. With `mirror` set (the figure's `Figure.sense_mirror`, a map of the senses to
+    those of the motion's left-right mirror image), every rule also acts as its mirror
+    twin: rule `R + r` scores the mirrored senses against rule `r`'s rectangle and poses
+    rule `r`'s targets mirrored (angle `i` toward `sign[i] * targets[r, partner[i]]`, the
+    pose map that `Figure.mirror` gives, read off the angle senses' part of the map), with
+    rule `r`'s tau. The choice among the 2R scores is the one above (ties keep the lower
+    index, so a rule before its twin). Where rule `r` acts in a state, its twin acts in the
+    mirror image of that state, so a controller that steps with the left leg steps the same
+    way with the right; the parameter count is unchanged.
+
     **Fields:** `centres`, `sides` `(R, num_senses)`; `targets` `(R, num_free)` (radians);
     `taus` `(R,)` (s); `filter_time` (s, static); `blend` (static) 0 for the paper's hard
     choice, or the temperature (in score units) of a soft choice for gradients (see
-    `smoothed`).
+    `smoothed`); `mirror` (static) `None` or the sense map `(source, flip)`.
 
     In 2D the parameter count is `(5 N + 4) R` for `N` rods with every joint free (the
     paper's count): `2 (2 N + 2)` stimulus numbers, `N - 1` target angles and one tau per
@@ -82,6 +93,7 @@ class SenseBSR(AbstractController):
     taus: Float[Array, " R"]
     filter_time: float = eqx.field(static=True)
     blend: float = eqx.field(static=True)
+    mirror: tuple[tuple[int, ...], tuple[bool, ...]] | None = eqx.field(static=True)
 
     supports_batch_last: ClassVar[bool] = True
     reads_senses: ClassVar[bool] = True
@@ -94,6 +106,7 @@ class SenseBSR(AbstractController):
         taus: Float[ArrayLike, " R"],
         filter_time: float = 0.0,
         blend: float = 0.0,
+        mirror=None,
     ):
         for name, value in (("filter_time", filter_time), ("blend", blend)):
             if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
@@ -106,6 +119,7 @@ class SenseBSR(AbstractController):
         self.taus = jnp.asarray(taus, dtype=float)
         self.filter_time = float(filter_time)
         self.blend = float(blend)
+        self.mirror = _sense_mirror_map(mirror, np.shape(centres)[-1], np.shape(targets)[-1])
 
     @property
     def num_rules(self) -> int:
@@ -114,6 +128,12 @@ class SenseBSR(AbstractController):
     @property
     def num_senses(self) -> int:
         return self.centres.shape[1]
+
+    @property
+    def num_choices(self) -> int:
+        """The rules the choice is made among: R, or 2R with mirror twins (`R + r` is rule
+        `r`'s twin)."""
+        return self.num_rules * (1 if self.mirror is None else 2)
 
     @property
     def num_parameters(self) -> int:
@@ -134,6 +154,11 @@ class SenseBSR(AbstractController):
                 f"SenseBSR has rectangles over {self.centres.shape[-1]} senses but figure "
                 f"{body.name!r} has {body.num_senses} ({', '.join(body.sense_names)})"
             )
+        if self.mirror is not None and self.mirror != body.sense_mirror:
+            raise ValueError(
+                f"SenseBSR.mirror = {self.mirror!r} is not figure {body.name!r}'s sense map "
+                f"(Figure.sense_mirror = {body.sense_mirror!r})"
+            )
         lam = 2.0 / self.sides
         # W as explicit adds over the senses (elementwise over any batch: the same rounding
         # whatever the batch width).
@@ -143,20 +168,36 @@ class SenseBSR(AbstractController):
             weight = weight + logs[:, j]
         return lam, weight
 
-    def scores(self, senses, plan) -> Float[Array, " R"]:
-        """Every rule's score `W (1 - max_j [lambda_j (S_j - mu_j)]^2)` for the senses `S`
-        (works on a batch-last stack too: `(R, *batch)`)."""
+    def scores(self, senses, plan) -> Float[Array, " choices"]:
+        """Every rule's score `W (1 - max_j [lambda_j (S_j - mu_j)]^2)` for the senses `S`,
+        then, with `mirror`, every twin's (the rules' scores of the mirrored senses): `R` or
+        `2R` scores (works on a batch-last stack too: `(choices, *batch)`)."""
         lam, weight = plan
         d = lam * (senses[None] - self.centres)
-        worst = jnp.max(d * d, axis=1)
-        return weight * (1.0 - worst)
+        own = weight * (1.0 - jnp.max(d * d, axis=1))
+        if self.mirror is None:
+            return own
+        d = lam * (self.mirrored_senses(senses)[None] - self.centres)
+        return jnp.concatenate([own, weight * (1.0 - jnp.max(d * d, axis=1))])
+
+    def mirrored_senses(self, senses):
+        """The senses of the mirror image of the state that reads `senses` (`mirror`'s map;
+        leading axis the senses, any batch after it)."""
+        source, flip = self.mirror
+        picked = senses[np.asarray(source)]
+        flip = np.asarray(flip).reshape((-1,) + (1,) * (jnp.ndim(senses) - 1))
+        return jnp.where(flip, 1.0 - picked, picked)
+
+    def _mirror_pose(self, target):
+        partner, sign = _pose_map(self.mirror, self.num_senses, self.targets.shape[1])
+        return jnp.stack([s * target[p] for p, s in zip(partner, sign, strict=True)])
 
     def init(self, senses, plan) -> ControllerState:
         """Rule 0 active; the filter starts at the starting state's senses."""
         del plan
         shape = jnp.shape(self.taus)[1:]  # () for one controller, (batch,) batch-last
         if self.blend > 0:
-            active = jnp.zeros((self.num_rules, *shape), dtype=float).at[0].set(1.0)
+            active = jnp.zeros((self.num_choices, *shape), dtype=float).at[0].set(1.0)
         else:
             active = jnp.zeros(shape, dtype=jnp.int32)
         zero = jnp.zeros(shape, dtype=float)
@@ -184,7 +225,7 @@ class SenseBSR(AbstractController):
         # stack); ties keep the lower index; no positive score keeps the previous rule.
         best = scores[0]
         index = jnp.zeros(jnp.shape(best), dtype=jnp.int32)
-        for r in range(1, self.num_rules):
+        for r in range(1, self.num_choices):
             higher = scores[r] > best
             best = jnp.where(higher, scores[r], best)
             index = jnp.where(higher, r, index)
@@ -202,21 +243,31 @@ class SenseBSR(AbstractController):
         return positive * weights + (1.0 - positive) * previous
 
     def actuation(self, t, state: ControllerState, plan):
-        """The active rule's target pose and time constant (held until the next tick)."""
+        """The active rule's target pose and time constant (held until the next tick); a
+        twin's are its rule's, the pose mirrored."""
         del t, plan
         active = state.discrete.active
+        r_all = self.num_rules
         if self.blend > 0:
             w = active
-            target = sum(w[r] * self.targets[r] for r in range(1, self.num_rules))
+            target = sum(w[r] * self.targets[r] for r in range(1, r_all))
             target = target + w[0] * self.targets[0]
-            tau = sum(w[r] * self.taus[r] for r in range(1, self.num_rules)) + w[0] * self.taus[0]
+            tau = sum(w[r] * self.taus[r] for r in range(1, r_all)) + w[0] * self.taus[0]
+            if self.mirror is not None:
+                target = target + sum(
+                    w[r_all + r] * self._mirror_pose(self.targets[r]) for r in range(r_all)
+                )
+                tau = tau + sum(w[r_all + r] * self.taus[r] for r in range(r_all))
             return target, tau
         # A chain of selects (elementwise for a batch-last stack) rather than an index.
+        rule = active if self.mirror is None else jnp.where(active >= r_all, active - r_all, active)
         target, tau = self.targets[0], self.taus[0]
-        for r in range(1, self.num_rules):
-            on = active == r
+        for r in range(1, r_all):
+            on = rule == r
             target = jnp.where(on, self.targets[r], target)
             tau = jnp.where(on, self.taus[r], tau)
+        if self.mirror is not None:
+            target = jnp.where(active >= r_all, self._mirror_pose(target), target)
         return target, tau
 
     def perceive(self, t, state: ControllerState, senses, plan):
@@ -227,7 +278,8 @@ class SenseBSR(AbstractController):
 
     def active_rules(self, perceived: Float[Array, "num_samples num_senses"]):
         """The rule that the hard choice makes at each of a sequence of perceived senses
-        (e.g. `Trajectory.senses`), starting from rule 0: which rules a motion activates."""
+        (e.g. `Trajectory.senses`), starting from rule 0: which rules a motion activates
+        (with `mirror`, `R + r` is rule `r`'s twin)."""
         plan = self.prepare_rules()
 
         def step(active, s):
@@ -247,7 +299,50 @@ class SenseBSR(AbstractController):
     def smoothed(self, width: float) -> "SenseBSR":
         """This controller with a soft rule choice at temperature `width` (score units; see
         `_soft`); `width=0` is the paper's hard switch."""
-        return SenseBSR(self.centres, self.sides, self.targets, self.taus, self.filter_time, width)
+        return SenseBSR(
+            self.centres, self.sides, self.targets, self.taus, self.filter_time, width, self.mirror
+        )
+
+
+def _sense_mirror_map(mirror, num_senses: int, num_free: int):
+    """`mirror` as a `(source, flip)` pair of tuples (lists, as JSON gives them, are
+    accepted), checked against the sense count."""
+    if mirror is None:
+        return None
+    allowed = (
+        f"None or (source, flip): a permutation of the {num_senses} senses and a bool for "
+        "each, its own inverse (a figure's Figure.sense_mirror)"
+    )
+    try:
+        source, flip = mirror
+        source = tuple(int(i) for i in source)
+        if not all(isinstance(b, bool | np.bool_) for b in flip):
+            raise TypeError
+        flip = tuple(bool(b) for b in flip)
+    except (TypeError, ValueError):
+        raise ValueError(f"SenseBSR.mirror = {mirror!r}; allowed: {allowed}") from None
+    ok = (
+        len(source) == num_senses
+        and len(flip) == num_senses
+        and sorted(source) == list(range(num_senses))
+        and all(source[source[j]] == j and flip[source[j]] == flip[j] for j in range(num_senses))
+    )
+    off = num_senses - num_free
+    if ok:
+        ok = all(off <= source[j] for j in range(off, num_senses))
+    if not ok:
+        raise ValueError(f"SenseBSR.mirror = {mirror!r}; allowed: {allowed}")
+    return source, flip
+
+
+def _pose_map(mirror, num_senses: int, num_free: int):
+    """The pose map `(partner, sign)` (`Figure.mirror`'s) read off the angle senses, the
+    last `num_free`, of the sense map."""
+    source, flip = mirror
+    off = num_senses - num_free
+    partner = tuple(source[off + k] - off for k in range(num_free))
+    sign = tuple(-1.0 if flip[off + k] else 1.0 for k in range(num_free))
+    return partner, sign
 
 
 def _check(centres, sides, targets, taus) -> None:
@@ -312,8 +407,14 @@ class SenseBSRSpace(AbstractControllerSpace[SenseBSR]):
     no probability for reinitialising against creeping; the default 1/3 is its Figure 5's
     mix (as for `TimeBSRSpace`).
 
+    **Mirror twins:** `mirror=True` draws and mutates controllers whose rules act also as
+    their mirror twins (see `SenseBSR`), with the figure's `Figure.sense_mirror` map.
+
     **Arguments:** `figure`; `num_rules` R (the paper: 10); `tau_min`, `tau_max` (s);
-    `filter_time` (s, 0: no filter); `creep`; `reinit_probability`; `relevance`.
+    `filter_time` (s, 0: no filter); `creep`; `reinit_probability`; `relevance`; `mirror`.
+
+    **Raises:** `ValueError` for a bad argument, or `mirror=True` for a figure without a
+    mirror image (planar, or not left-right symmetric).
     """
 
     num_free: int = eqx.field(static=True)
@@ -326,6 +427,7 @@ class SenseBSRSpace(AbstractControllerSpace[SenseBSR]):
     creep: float = eqx.field(static=True)
     reinit_probability: float = eqx.field(static=True)
     relevance: str = eqx.field(static=True)
+    mirror: tuple[tuple[int, ...], tuple[bool, ...]] | None = eqx.field(static=True)
 
     uses_motion: ClassVar[bool] = True
 
@@ -339,6 +441,7 @@ class SenseBSRSpace(AbstractControllerSpace[SenseBSR]):
         creep: float = 0.1,
         reinit_probability: float = 1 / 3,
         relevance: Relevance | None = None,
+        mirror: bool = False,
     ):
         if not isinstance(figure, Figure):
             raise TypeError(f"SenseBSRSpace needs a Figure; got {type(figure).__name__}")
@@ -387,6 +490,15 @@ class SenseBSRSpace(AbstractControllerSpace[SenseBSR]):
         self.creep = float(creep)
         self.reinit_probability = float(reinit_probability)
         self.relevance = str(relevance)
+        if not isinstance(mirror, bool):
+            raise ValueError(f"SenseBSRSpace.mirror = {mirror!r}; allowed: True or False")
+        if mirror and figure.sense_mirror is None:
+            why = "is planar" if figure.planar else "is not left-right symmetric"
+            raise ValueError(
+                f"SenseBSRSpace.mirror = True but figure {figure.name!r} {why}, so it has no "
+                "mirror image (Figure.sense_mirror is None); allowed: mirror = False"
+            )
+        self.mirror = figure.sense_mirror if mirror else None
 
     @property
     def family(self) -> str:
@@ -416,6 +528,7 @@ class SenseBSRSpace(AbstractControllerSpace[SenseBSR]):
             targets,
             taus,
             filter_time=self.filter_time,
+            mirror=self.mirror,
         )
 
     def _stimulus(self, u_centre, u_side, u_pick, u_sign, motion):
@@ -493,6 +606,7 @@ class SenseBSRSpace(AbstractControllerSpace[SenseBSR]):
             controller.taus.at[rule].set(pick(new_tau, crept_tau)),
             filter_time=controller.filter_time,
             blend=controller.blend,
+            mirror=controller.mirror,
         )
 
     def trainable(self, controller: SenseBSR):
