@@ -117,6 +117,13 @@ def test_until_fall_and_standing_time_stop_at_the_first_sample_below_60_percent(
     assert value("standing_time", crouch) == pytest.approx(1.0)
     assert value("forward", crouch, until_fall=True) == pytest.approx(3.5)
     assert value("feet_forward", crouch, until_fall=True) == pytest.approx(3.5)
+    # A stricter fall (fall_share 0.85): the crouch to 60% at t = 0.6 s is one.
+    strict = dict(until_fall=True, fall_share=0.85)
+    assert value("standing_time", crouch, fall_share=0.85) == pytest.approx(0.6)
+    assert value("forward", crouch, **strict) == pytest.approx(1.5)
+    assert value("feet_forward", crouch, **strict) == pytest.approx(1.5)
+    with pytest.raises(ValueError, match=r"fall_share = 1.5; allowed: a number between 0 and 1"):
+        value("standing_time", crouch, fall_share=1.5)
 
 
 def test_final_spin_is_the_last_intervals_turn_rate():
@@ -602,6 +609,10 @@ def test_steps_counts_alternating_touch_downs():
     # Only the steps before a fall count with until_fall (below 60% from the 5th sample).
     z = [0.5] * 4 + [0.2] * (len(down) - 4)
     assert value("steps", biped(down, z), until_fall=True) == 1.0
+    # A fall at 85%: a dip to 80% from the 3rd sample ends the count there.
+    z = [0.5] * 2 + [0.4] * (len(down) - 2)
+    assert value("steps", biped(down, z), until_fall=True) == 4.0
+    assert value("steps", biped(down, z), until_fall=True, fall_share=0.85) == 0.0
     assert value("steps", biped(down, z)) == 4.0
 
 

@@ -46,30 +46,36 @@ FALL_SHARE = 0.6
 `walk` check's criterion); see `until_fall` and `standing_time`."""
 
 
-def _fall_index(trajectory: Trajectory) -> Int[Array, ""]:
-    """The first saved sample at which the centre of mass is below `FALL_SHARE` of its
-    starting height, or the last sample if it never is."""
+def _fall_index(trajectory: Trajectory, share: float = FALL_SHARE) -> Int[Array, ""]:
+    """The first saved sample at which the centre of mass is below `share` of its starting
+    height, or the last sample if it never is."""
+    if isinstance(share, bool) or not (isinstance(share, int | float) and 0 < share < 1):
+        raise ValueError(f"fall_share = {share!r}; allowed: a number between 0 and 1")
     z = trajectory.com[:, 2]
-    below = z < FALL_SHARE * z[0]
+    below = z < share * z[0]
     return jnp.where(jnp.any(below), jnp.argmax(below), z.shape[0] - 1)
 
 
-def _end(trajectory: Trajectory, until_fall: bool):
-    return _fall_index(trajectory) if until_fall else -1
+def _end(trajectory: Trajectory, until_fall: bool, share: float = FALL_SHARE):
+    return _fall_index(trajectory, share) if until_fall else -1
 
 
 @register_term("forward")
-def forward(trajectory: Trajectory, until_fall: bool = False) -> Float[Array, ""]:
+def forward(
+    trajectory: Trajectory, until_fall: bool = False, fall_share: float = FALL_SHARE
+) -> Float[Array, ""]:
     """Final horizontal displacement of the centre of mass along the body's initial forward
     direction (m; Table 1's primary term for walking and bounding).
 
     With `until_fall`, the displacement when the body falls (the first sample with its
     centre of mass below 60% of its starting height), or at the end if it never does: a
     dive forward earns only what it travelled standing, as an episode that ends at a fall
-    scores in reinforcement learning.
+    scores in reinforcement learning. `fall_share` (0..1): a stricter (or laxer) fall, the
+    centre of mass below that share of its starting height.
     """
     direction = _horizontal_unit(trajectory.frame[0, :, 0])
-    shift = trajectory.com[_end(trajectory, until_fall), :2] - trajectory.com[0, :2]
+    end = _end(trajectory, until_fall, fall_share)
+    shift = trajectory.com[end, :2] - trajectory.com[0, :2]
     return jnp.dot(shift, direction)
 
 
@@ -84,7 +90,10 @@ def sideways(trajectory: Trajectory) -> Float[Array, ""]:
 
 @register_term("feet_forward")
 def feet_forward(
-    trajectory: Trajectory, tolerance: float = 0.01, until_fall: bool = False
+    trajectory: Trajectory,
+    tolerance: float = 0.01,
+    until_fall: bool = False,
+    fall_share: float = FALL_SHARE,
 ) -> Float[Array, ""]:
     """Mean final horizontal displacement of the feet along the body's initial forward
     direction (m; the second paper rewarded Bob's feet moving forward with his centre of
@@ -93,12 +102,13 @@ def feet_forward(
     The feet are the points that stand on the floor at the start: within `tolerance` m of
     the lowest point at the first sample (Bob's and Star-Man's two point feet, Rex's four
     foot nodes, a lattice's bottom masses). A body that only leans forward moves its centre
-    of mass but not its feet; one that walks moves both. `until_fall`: as `forward`'s.
+    of mass but not its feet; one that walks moves both. `until_fall`, `fall_share`: as
+    `forward`'s.
     """
     z0 = trajectory.points[0, :, 2]
     feet = z0 <= jnp.min(z0) + tolerance
     direction = _horizontal_unit(trajectory.frame[0, :, 0])
-    end = _end(trajectory, until_fall)
+    end = _end(trajectory, until_fall, fall_share)
     shift = trajectory.points[end, :, :2] - trajectory.points[0, :, :2]
     along = shift @ direction
     return jnp.sum(jnp.where(feet, along, 0.0)) / jnp.sum(feet)
@@ -116,7 +126,11 @@ def _start_feet(trajectory: Trajectory, tolerance: float):
 
 @register_term("steps")
 def steps(
-    trajectory: Trajectory, tolerance: float = 0.01, until_fall: bool = False, cap: float = 20.0
+    trajectory: Trajectory,
+    tolerance: float = 0.01,
+    until_fall: bool = False,
+    cap: float = 20.0,
+    fall_share: float = FALL_SHARE,
 ) -> Float[Array, ""]:
     """Alternating steps, counted as the `walk` check counts them (at most `cap`): a touch-
     down of one side's feet (up at one sample, down at the next) is a step when it is the only
@@ -125,8 +139,8 @@ def steps(
 
     The feet are the points on the floor at the start (as `feet_forward`'s), each side the
     ones left or right of the centre of mass along the initial left axis. `until_fall`:
-    only the steps before the body falls (see `forward`). A reward for stepping, which a body
-    that stands still or dives forward lacks.
+    only the steps before the body falls (see `forward`, and its `fall_share`). A reward
+    for stepping, which a body that stands still or dives forward lacks.
     """
     feet, left = _start_feet(trajectory, tolerance)
     contact = trajectory.contact
@@ -135,7 +149,8 @@ def steps(
     )
     down = down.at[0].set(down[1])  # resting on the floor at the start has no flag yet
     landing = down[1:] & ~down[:-1]
-    counted = jnp.arange(landing.shape[0]) < _end(trajectory, until_fall) if until_fall else True
+    end = _end(trajectory, until_fall, fall_share)
+    counted = jnp.arange(landing.shape[0]) < end if until_fall else True
     landing = landing & jnp.asarray(counted)[..., None]
 
     def one(carry, row):
@@ -151,11 +166,12 @@ def steps(
 
 
 @register_term("standing_time")
-def standing_time(trajectory: Trajectory) -> Float[Array, ""]:
+def standing_time(trajectory: Trajectory, fall_share: float = FALL_SHARE) -> Float[Array, ""]:
     """Time from the start until the body falls (s): the first saved instant with its centre
-    of mass below 60% of its starting height, or the whole duration if it never falls (a
-    slope toward staying up for longer; reinforcement learning's "alive" reward)."""
-    return trajectory.ts[_fall_index(trajectory)] - trajectory.ts[0]
+    of mass below 60% (`fall_share`) of its starting height, or the whole duration if it
+    never falls (a slope toward staying up for longer; reinforcement learning's "alive"
+    reward)."""
+    return trajectory.ts[_fall_index(trajectory, fall_share)] - trajectory.ts[0]
 
 
 @register_term("distance")
