@@ -14,7 +14,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from .._body.figure import Figure
 from .base import AbstractController, AbstractControllerSpace, ControllerState
-from .time_bsr import joint_bounds, rule_response
+from .time_bsr import figure_mirror, joint_bounds, rule_response
 
 SIDE_MIN, SIDE_MAX = 0.4, 4.0
 """Table 2's range of a hyper-rectangle's side length `2 / lambda` (log-uniform)."""
@@ -490,15 +490,7 @@ class SenseBSRSpace(AbstractControllerSpace[SenseBSR]):
         self.creep = float(creep)
         self.reinit_probability = float(reinit_probability)
         self.relevance = str(relevance)
-        if not isinstance(mirror, bool):
-            raise ValueError(f"SenseBSRSpace.mirror = {mirror!r}; allowed: True or False")
-        if mirror and figure.sense_mirror is None:
-            why = "is planar" if figure.planar else "is not left-right symmetric"
-            raise ValueError(
-                f"SenseBSRSpace.mirror = True but figure {figure.name!r} {why}, so it has no "
-                "mirror image (Figure.sense_mirror is None); allowed: mirror = False"
-            )
-        self.mirror = figure.sense_mirror if mirror else None
+        self.mirror = figure_mirror(figure, mirror, "SenseBSRSpace", "sense_mirror")
 
     @property
     def family(self) -> str:

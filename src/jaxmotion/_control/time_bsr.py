@@ -127,6 +127,24 @@ class TimeBSR(AbstractController):
         return target, tau
 
 
+def figure_mirror(figure: Figure, mirror: bool, owner: str, attribute: str):
+    """The figure's map `Figure.<attribute>` (`mirror` or `sense_mirror`) if `mirror` is
+    true, else `None`; a `ValueError` naming `owner` for a non-bool or a figure without a
+    mirror image."""
+    if not isinstance(mirror, bool):
+        raise ValueError(f"{owner}.mirror = {mirror!r}; allowed: True or False")
+    if not mirror:
+        return None
+    value = getattr(figure, attribute)
+    if value is None:
+        why = "is planar" if figure.planar else "is not left-right symmetric"
+        raise ValueError(
+            f"{owner}.mirror = True but figure {figure.name!r} {why}, so it has no mirror "
+            f"image (Figure.{attribute} is None); allowed: mirror = False"
+        )
+    return value
+
+
 def _mirror_map(mirror, num_free: int):
     """`mirror` as a `(partner, sign)` pair of tuples (lists, as JSON gives them, are
     accepted), checked against `num_free` angles; `None` stays `None`."""
@@ -274,15 +292,7 @@ class TimeBSRSpace(AbstractControllerSpace[TimeBSR]):
         self.tau_max = float(tau_max)
         self.creep = float(creep)
         self.reinit_probability = float(reinit_probability)
-        if not isinstance(mirror, bool):
-            raise ValueError(f"TimeBSRSpace.mirror = {mirror!r}; allowed: True or False")
-        if mirror and figure.mirror is None:
-            why = "is planar" if figure.planar else "is not left-right symmetric"
-            raise ValueError(
-                f"TimeBSRSpace.mirror = True but figure {figure.name!r} {why}, so it has no "
-                "mirror image (Figure.mirror is None); allowed: mirror = False"
-            )
-        self.mirror = figure.mirror if mirror else None
+        self.mirror = figure_mirror(figure, mirror, "TimeBSRSpace", "mirror")
 
     @property
     def family(self) -> str:
