@@ -348,9 +348,10 @@ class Figure(AbstractBody):
         is then the mirror image of the joint commands, not exactly of the pose.
         """
         images = self._mirror_images()
-        if images is None:
-            return None
-        _, partner, sign = images
+        return None if images is None else self._free_mirror(*images[1:])
+
+    def _free_mirror(self, partner, sign):
+        """The joints' mirror partners and signs restricted to the free angles."""
         index = {j: i for i, j in enumerate(self.free)}
         return (
             tuple(index[partner[j]] for j in self.free),
@@ -380,8 +381,8 @@ class Figure(AbstractBody):
         flip_y = np.diag([1.0, -1.0, 1.0])
         if not np.allclose(flip_y @ frame, frame @ flip_y, atol=1e-9):
             return None
-        image, _, _ = images
-        partner, sign = self.mirror
+        image, joint_partner, joint_sign = images
+        partner, sign = self._free_mirror(joint_partner, joint_sign)
         n, f = self.num_nodes, self.num_free
         # height; velocity f, l, u; spin f, l, u; up f, l, u.
         source = list(range(10))

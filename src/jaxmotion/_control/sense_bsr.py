@@ -14,7 +14,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from .._body.figure import Figure
 from .base import AbstractController, AbstractControllerSpace, ControllerState
-from .time_bsr import figure_mirror, joint_bounds, rule_response
+from .time_bsr import figure_mirror, joint_bounds, mirrored_pose, rule_response
 
 SIDE_MIN, SIDE_MAX = 0.4, 4.0
 """Table 2's range of a hyper-rectangle's side length `2 / lambda` (log-uniform)."""
@@ -189,8 +189,7 @@ class SenseBSR(AbstractController):
         return jnp.where(flip, 1.0 - picked, picked)
 
     def _mirror_pose(self, target):
-        partner, sign = _pose_map(self.mirror, self.num_senses, self.targets.shape[1])
-        return jnp.stack([s * target[p] for p, s in zip(partner, sign, strict=True)])
+        return mirrored_pose(target, *_pose_map(self.mirror, self.num_senses, target.shape[0]))
 
     def init(self, senses, plan) -> ControllerState:
         """Rule 0 active; the filter starts at the starting state's senses."""
@@ -254,9 +253,10 @@ class SenseBSR(AbstractController):
             target = target + w[0] * self.targets[0]
             tau = sum(w[r] * self.taus[r] for r in range(1, r_all)) + w[0] * self.taus[0]
             if self.mirror is not None:
-                target = target + sum(
-                    w[r_all + r] * self._mirror_pose(self.targets[r]) for r in range(r_all)
-                )
+                # The twins' blend of the rules' poses, mirrored once (the mirror is a
+                # signed permutation: exact, and linear).
+                twins = sum(w[r_all + r] * self.targets[r] for r in range(r_all))
+                target = target + self._mirror_pose(twins)
                 tau = tau + sum(w[r_all + r] * self.taus[r] for r in range(r_all))
             return target, tau
         # A chain of selects (elementwise for a batch-last stack) rather than an index.

@@ -121,10 +121,16 @@ class TimeBSR(AbstractController):
             target = jnp.where(on, self.targets[r], target)
             tau = jnp.where(on, self.taus[r], tau)
         if self.mirror is not None:
-            partner, sign = self.mirror
-            mirrored = jnp.stack([s * target[p] for p, s in zip(partner, sign, strict=True)])
+            mirrored = mirrored_pose(target, *self.mirror)
             target = jnp.where(index >= self.num_rules, mirrored, target)
         return target, tau
+
+
+def mirrored_pose(target, partner, sign):
+    """The mirror image of the pose `target` (free angles, leading axis; any batch after
+    it) under the map `(partner, sign)` (`Figure.mirror`): angle `i` is
+    `sign[i] * target[partner[i]]`."""
+    return jnp.stack([s * target[p] for p, s in zip(partner, sign, strict=True)])
 
 
 def figure_mirror(figure: Figure, mirror: bool, owner: str, attribute: str):
