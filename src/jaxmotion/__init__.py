@@ -27,6 +27,8 @@ from ._control.regimes import RegimesSpace as RegimesSpace
 from ._control.sense_bsr import BSRState as BSRState
 from ._control.sense_bsr import SenseBSR as SenseBSR
 from ._control.sense_bsr import SenseBSRSpace as SenseBSRSpace
+from ._control.sequence import Sequence as Sequence
+from ._control.sequence import SequenceState as SequenceState
 from ._control.time_bsr import TimeBSR as TimeBSR
 from ._control.time_bsr import TimeBSRSpace as TimeBSRSpace
 from ._devices import use_cpu_cores as use_cpu_cores
@@ -95,6 +97,8 @@ __all__ = [
     "SearchResult",
     "SenseBSR",
     "SenseBSRSpace",
+    "Sequence",
+    "SequenceState",
     "SerialSearch",
     "SerialSearchResult",
     "SerialSearchState",

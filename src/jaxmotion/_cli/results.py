@@ -23,6 +23,7 @@ from .._body.base import BodyState
 from .._control.base import AbstractController
 from .._control.regimes import Regimes
 from .._control.sense_bsr import SenseBSR
+from .._control.sequence import Sequence as Composite
 from .._control.time_bsr import TimeBSR
 from .._search.hill_climb import SearchResult, parallel_hill_climb
 from .._search.history import History
@@ -35,12 +36,33 @@ CONTROLLER_FAMILIES: dict[str, type[AbstractController]] = {
     "regimes": Regimes,
     "time_bsr": TimeBSR,
     "sense_bsr": SenseBSR,
+    "sequence": Composite,
 }
 FORMAT_VERSION = 1
 
 
-def controller_to_dict(controller: AbstractController, family: str) -> dict[str, Any]:
-    """A JSON-ready description of one controller: its family and every field's value."""
+def _family_of(controller: AbstractController) -> str:
+    for name, cls in CONTROLLER_FAMILIES.items():
+        if type(controller) is cls:
+            return name
+    known = ", ".join(cls.__name__ for cls in CONTROLLER_FAMILIES.values())
+    raise ValueError(f"cannot save a {type(controller).__name__} controller; savable: {known}")
+
+
+def controller_to_dict(controller: AbstractController, family: str | None = None) -> dict[str, Any]:
+    """A JSON-ready description of one controller: its family (by default, the one its
+    class is saved as) and every field's value. A `Sequence` holds its controllers' own
+    descriptions, in order, and its transitions (its control period is the simulation's,
+    set when it runs)."""
+    family = _family_of(controller) if family is None else family
+    if isinstance(controller, Composite):
+        return {
+            "family": family,
+            "params": {
+                "controllers": [controller_to_dict(c) for c in controller.controllers],
+                "transitions": np.asarray(controller.transitions).tolist(),
+            },
+        }
     params: dict[str, Any] = {}
     for f in dataclasses.fields(controller):
         value = getattr(controller, f.name)
@@ -62,12 +84,24 @@ def controller_from_dict(data: dict[str, Any]) -> AbstractController:
         raise ValueError(f"controller family = {family!r}; allowed: {known}")
     cls = CONTROLLER_FAMILIES[family]
     params = dict(data.get("params", {}))
-    names = [f.name for f in dataclasses.fields(cls)]
+    names = (
+        ["controllers", "transitions"]
+        if cls is Composite
+        else [f.name for f in dataclasses.fields(cls)]
+    )
     unknown = sorted(set(params) - set(names))
     if unknown:
         raise ValueError(
             f"{family} controller has unknown parameters {unknown}; allowed: {', '.join(names)}"
         )
+    if cls is Composite:
+        children = params.get("controllers")
+        if not isinstance(children, list) or not all(isinstance(c, dict) for c in children):
+            raise ValueError(
+                f"sequence controller's controllers = {children!r}; allowed: a list of saved "
+                "controllers ({'family': ..., 'params': ...})"
+            )
+        return Composite([controller_from_dict(c) for c in children], params.get("transitions"))
     if "amplitudes" in params:
         params["amplitudes"] = tuple(params["amplitudes"])
     return cls(**params)

@@ -31,8 +31,9 @@ class AbstractController(eqx.Module):
     """A controller: an equinox Module whose array fields are its parameters, and a small
     hybrid system run alongside the body (the way robotics simulators run a policy).
 
-    A simulation first calls `prepare(body)` once (outside the time loop) for whatever can
-    be computed ahead (the plan), and `init(senses, plan)` for the controller's state at the
+    A simulation first calls `on_grid(control_dt)` (the control period, for a controller
+    that counts ticks) and `prepare(body)` once (outside the time loop) for whatever can be
+    computed ahead (the plan), and `init(senses, plan)` for the controller's state at the
     start. Time then runs in control periods of `control_dt` (by default one step of the
     search's solver), each starting with a *control tick* at its time `t_k`:
 
@@ -56,7 +57,9 @@ class AbstractController(eqx.Module):
     `actuation`, `rates` and `perceive` also work on a batch of controllers stacked with the
     batch as the *last* axis of every array field (and of the plan, the state and the
     senses): index only leading axes and let elementwise arithmetic broadcast. The batched
-    layout then calls them once for the whole batch; otherwise it `vmap`s them.
+    layout then calls them once for the whole batch; otherwise it `vmap`s them. In that
+    layout the time `t` is shared (a scalar) or per controller (`(batch,)`: a `Sequence`
+    gives each controller of a batch its own local time).
     """
 
     supports_batch_last: ClassVar[bool] = False
@@ -104,6 +107,14 @@ class AbstractController(eqx.Module):
         filtered senses). Searches record it along a motion (the relevance heuristic)."""
         del t, state, plan
         return senses
+
+    def on_grid(self, control_dt: float) -> "AbstractController":
+        """This controller as run with control ticks `control_dt` seconds apart. A
+        simulation calls it once, before `prepare`, with its control period; a controller
+        that keeps clocks of its own (a `Sequence`'s local times, counted in whole ticks)
+        records the period here. Default: the controller itself."""
+        del control_dt
+        return self
 
     def smoothed(self, width: float) -> "AbstractController":
         """The same controller with its discrete switches blended (for gradients,

@@ -266,6 +266,10 @@ def _prepare(body: AbstractBody, controller: AbstractController | None):
     return None if controller is None else controller.prepare(body)
 
 
+def _on_grid(controller: AbstractController | None, grid: TimeGrid):
+    return None if controller is None else controller.on_grid(grid.control_dt)
+
+
 def simulate(
     body: AbstractBody,
     controller: AbstractController | None,
@@ -326,6 +330,7 @@ def simulate(
     """
     grid = time_grid(duration, dt, save_dt, control_dt)
     _check_solver(solver)
+    controller = _on_grid(controller, grid)
     plan = _prepare(body, controller)
     system = ClosedLoop(
         body.dynamics(), controller, plan, world, grid.control_dt, record_senses=senses
@@ -409,6 +414,7 @@ def simulate_batch(
     grid = time_grid(duration, dt, save_dt, control_dt)
     _check_solver(solver)
     if controllers is not None:
+        controllers = _on_grid(controllers, grid)
         batch = jax.tree_util.tree_leaves(controllers)[0].shape[0]
         plans = jax.vmap(lambda c: _prepare(body, c))(controllers)
     else:

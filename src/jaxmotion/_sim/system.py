@@ -70,7 +70,7 @@ class ClosedLoop(eqx.Module):
 
     @property
     def reads_senses(self) -> bool:
-        return self.controller is not None and type(self.controller).reads_senses
+        return self.controller is not None and bool(self.controller.reads_senses)
 
     def restore(self, control: ControllerState) -> ControllerState:
         """The controller's state in its own dtypes. diffrax carries every leaf of the
