@@ -16,6 +16,7 @@ from ._body.figure import Figure as Figure
 from ._body.figure import FigurePositions as FigurePositions
 from ._body.figure import FigureVelocities as FigureVelocities
 from ._body.lattice import Lattice as Lattice
+from ._composite import Composite as Composite
 from ._control.base import AbstractController as AbstractController
 from ._control.base import AbstractControllerSpace as AbstractControllerSpace
 from ._control.base import ControllerState as ControllerState
@@ -36,6 +37,10 @@ from ._objective import terms as _builtin_terms  # noqa: F401  (registers the bu
 from ._objective.registry import Objective as Objective
 from ._objective.registry import register_term as register_term
 from ._objective.registry import terms as objective_terms
+from ._objective.script import Script as Script
+from ._objective.script import ScriptError as ScriptError
+from ._objective.script import closeness as closeness
+from ._objective.script import script_measures as script_measures
 from ._search.hill_climb import HillClimbState as HillClimbState
 from ._search.hill_climb import ParallelHillClimb as ParallelHillClimb
 from ._search.hill_climb import SearchResult as SearchResult
@@ -51,6 +56,11 @@ from ._search.serial import SerialSearch as SerialSearch
 from ._search.serial import SerialSearchResult as SerialSearchResult
 from ._search.serial import SerialSearchState as SerialSearchState
 from ._search.serial import serial_search as serial_search
+from ._search.transitions import TransitionSearch as TransitionSearch
+from ._search.transitions import TransitionSearchResult as TransitionSearchResult
+from ._search.transitions import TransitionSearchState as TransitionSearchState
+from ._search.transitions import transition_search as transition_search
+from ._sim.robust import Robustness as Robustness
 from ._sim.simulate import simulate as simulate
 from ._sim.trajectory import Observation as Observation
 from ._sim.trajectory import SimulationState as SimulationState
@@ -80,6 +90,7 @@ __all__ = [
     "AbstractDynamics",
     "BSRState",
     "BodyState",
+    "Composite",
     "ControllerState",
     "Figure",
     "FigurePositions",
@@ -94,6 +105,9 @@ __all__ = [
     "RefineResult",
     "Regimes",
     "RegimesSpace",
+    "Robustness",
+    "Script",
+    "ScriptError",
     "SearchResult",
     "SenseBSR",
     "SenseBSRSpace",
@@ -108,8 +122,12 @@ __all__ = [
     "TimeBSR",
     "TimeBSRSpace",
     "Trajectory",
+    "TransitionSearch",
+    "TransitionSearchResult",
+    "TransitionSearchState",
     "World",
     "checks",
+    "closeness",
     "deform",
     "figures",
     "fitness_and_gradient",
@@ -120,8 +138,10 @@ __all__ = [
     "parallel_hill_climb",
     "refine",
     "register_term",
+    "script_measures",
     "serial_search",
     "simulate",
+    "transition_search",
     "use_cpu_cores",
     "viz",
 ]

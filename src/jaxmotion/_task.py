@@ -12,6 +12,7 @@ from ._control.base import AbstractController, AbstractControllerSpace
 from ._objective.registry import Objective
 from ._sim import execution
 from ._sim.compile import simulation_jit
+from ._sim.robust import Robustness
 from ._sim.simulate import SolverName, simulate, simulate_batch, time_grid
 from ._sim.trajectory import SimulationState, Trajectory
 from ._world import World
@@ -36,6 +37,10 @@ class Task(eqx.Module):
     - `initial_state`: the body's state at the start of every evaluation (default: its rest
         pose, at rest), e.g. `trajectory.final.body` to search for a motion that starts
         where another ended (each controller starts from its own initial state, at time 0).
+    - `robustness`: a `Robustness` to evaluate every controller from several random starts
+        around `initial_state` and score it by their mean (or worst) fitness, so a search
+        finds controllers that work from wherever they start (the second paper's robust
+        controllers); `evaluate` then needs a key. Default `None`: one start.
 
     **Raises:** `ValueError` for non-positive or inconsistent times, or an initial state
     that is not the body's, before any compilation.
@@ -50,6 +55,7 @@ class Task(eqx.Module):
     save_dt: float | None = eqx.field(static=True)
     control_dt: float | None = eqx.field(static=True)
     initial_state: BodyState | None
+    robustness: Robustness | None
 
     def __init__(
         self,
@@ -63,7 +69,12 @@ class Task(eqx.Module):
         *,
         control_dt: float | None = None,
         initial_state: BodyState | None = None,
+        robustness: Robustness | None = None,
     ):
+        if robustness is not None and not isinstance(robustness, Robustness):
+            raise TypeError(
+                f"Task.robustness must be a Robustness or None; got {type(robustness).__name__}"
+            )
         for name, value, kind in (
             ("body", body, AbstractBody),
             ("world", world, World),
@@ -84,13 +95,18 @@ class Task(eqx.Module):
         self.save_dt = None if save_dt is None else float(save_dt)
         self.control_dt = None if control_dt is None else float(control_dt)
         self.initial_state = None if initial_state is None else _body_state(body, initial_state)
+        self.robustness = robustness
 
     def sample(self, num: int, *, key: PRNGKeyArray) -> AbstractController:
         """`num` random controllers of the task's family, stacked along a leading axis."""
         return jax.vmap(lambda k: self.space.sample(key=k))(jr.split(key, num))
 
     def evaluate(
-        self, params: AbstractController, *, chunk: int | None = None
+        self,
+        params: AbstractController,
+        *,
+        chunk: int | None = None,
+        key: PRNGKeyArray | None = None,
     ) -> Float[Array, " batch"]:
         """Fitness (maximised) of a batch of controllers (leading batch axis on every array).
 
@@ -108,16 +124,63 @@ class Task(eqx.Module):
         place in the batch nor on the size of the batch it comes in (so a search's best
         controller replays alone to the very fitness the search recorded). Batches under 16
         are padded to 16, which is why they cost about as much as 16.
+
+        With `robustness`, every controller is simulated from `robustness.samples` random
+        starts drawn from `key` (one key for the batch, or one per controller, `(batch,)`:
+        controllers with the same key see the same starts, `random_starts`) and scored by
+        the mean or the worst of their fitness (a start that blows up scores `-inf`, and
+        so does the controller). The same keys give the same fitness. Without
+        `robustness`, `key` is not used.
         """
+        if self.robustness is not None:
+            return self._robust(params, chunk, key, sensed=False)
         return execution.run(_fitness, self, params, chunk=chunk)
 
     def evaluate_sensed(
-        self, params: AbstractController, *, chunk: int | None = None
+        self,
+        params: AbstractController,
+        *,
+        chunk: int | None = None,
+        key: PRNGKeyArray | None = None,
     ) -> tuple[Float[Array, " batch"], Float[Array, "batch num_saves num_senses"]]:
         """`evaluate`, and the senses each controller perceived at the saved times
         (`AbstractController.perceive`): what a mutation with the second paper's relevance
-        heuristic looks at. The fitness is bitwise `evaluate`'s."""
+        heuristic looks at. The fitness is bitwise `evaluate`'s. With `robustness`, the
+        senses are those of the first random start."""
+        if self.robustness is not None:
+            return self._robust(params, chunk, key, sensed=True)
         return execution.run(_fitness_and_senses, self, params, chunk=chunk)
+
+    def random_starts(self, key: PRNGKeyArray, batch: int | None = None) -> BodyState:
+        """The starts `evaluate` simulates from with `robustness` (`Robustness.starts`
+        around the task's initial state): for one key, body states along a leading axis of
+        `robustness.samples`; with `batch`, axes `(batch, samples)` (`key` one key, or one
+        per controller)."""
+        if self.robustness is None:
+            raise ValueError("this task has no robustness: every evaluation starts alike")
+        start = self.body.initial_state() if self.initial_state is None else self.initial_state
+        out = _starts(self.robustness, self.body, start, _batch_keys(key, batch))
+        return _first(out) if batch is None and jnp.ndim(key) == 0 else out
+
+    def _robust(self, params, chunk, key, sensed: bool):
+        if key is None:
+            raise ValueError(
+                "this task evaluates every controller from random starts (Task.robustness): "
+                "evaluate needs key=..., one PRNG key or one per controller"
+            )
+        starts = self.random_starts(key, execution.batch_size(params))
+        fitness, senses = [], None
+        for k in range(self.robustness.samples):
+            start = jax.tree_util.tree_map(lambda a, k=k: a[:, k], starts)
+            if sensed and k == 0:
+                f, senses = execution.run(
+                    _fitness_and_senses_from, self, (params, start), chunk=chunk
+                )
+            else:
+                f = execution.run(_fitness_from, self, (params, start), chunk=chunk)
+            fitness.append(f)
+        score = self.robustness.reduced(jnp.stack(fitness, axis=-1))
+        return (score, senses) if sensed else score
 
     def trajectories(
         self, params: AbstractController, *, senses: bool = False, initial_state=None
@@ -167,6 +230,7 @@ class Task(eqx.Module):
             save_dt=save_dt,
             control_dt=self.control_dt,
             initial_state=self.initial_state,
+            robustness=self.robustness,
         )
         if solver == "symplectic":
             one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], params)
@@ -255,6 +319,38 @@ def _fitness(task: Task, params):
 def _fitness_and_senses(task: Task, params):
     trajectories = _local(task, params, senses=True)
     return _objective(task, trajectories), trajectories.senses
+
+
+def _fitness_from(task: Task, batch):
+    params, start = batch
+    return _objective(task, _local(task, params, initial_state=start))
+
+
+def _fitness_and_senses_from(task: Task, batch):
+    params, start = batch
+    trajectories = _local(task, params, senses=True, initial_state=start)
+    return _objective(task, trajectories), trajectories.senses
+
+
+def _batch_keys(key, batch: int | None):
+    """`(batch,)` keys: the given ones, or one key repeated (`batch` None: one)."""
+    if jnp.ndim(key) == 0:
+        return jnp.stack([key] * (1 if batch is None else batch))
+    if batch is not None and key.shape != (batch,):
+        raise ValueError(
+            f"evaluate's key has shape {key.shape}; allowed: one key, or one per controller "
+            f"({batch},)"
+        )
+    return key
+
+
+def _first(tree):
+    return jax.tree_util.tree_map(lambda a: a[0], tree)
+
+
+@eqx.filter_jit
+def _starts(robustness: Robustness, body, start, keys):
+    return jax.vmap(lambda k: robustness.starts(body, start, k))(keys)
 
 
 def _trajectories(task: Task, params) -> Trajectory:

@@ -68,7 +68,8 @@ class ParallelHillClimb(eqx.Module):
         the initial controllers in the order they were drawn."""
         population, next_key = _sample(self, task, key)
         # In calls of the search's batch size, so that the steps reuse this compilation.
-        fitness = task.evaluate(population, chunk=self.batch)
+        starts = None if task.robustness is None else jr.fold_in(next_key, _STARTS)
+        fitness = task.evaluate(population, chunk=self.batch, key=starts)
         return _rank(population, fitness, next_key), fitness
 
     def ask(self, task: Task, state: HillClimbState) -> AbstractController:
@@ -95,8 +96,26 @@ class ParallelHillClimb(eqx.Module):
         """ask, evaluate, tell. Returns the new state and the fitness of this step's `batch`
         evaluations."""
         children = self.ask(task, state)
-        fitness = task.evaluate(children)
+        fitness = task.evaluate(children, key=_start_key(task, state))
         return self.tell(state, children, fitness, num_valid), fitness
+
+
+# The random starts of a task with robustness (`Task.robustness`) draw from
+# `fold_in(fold_in(key, _STARTS), step)`, apart from the steps' picks and perturbations.
+_STARTS = 2**31 - 1
+
+
+def _start_key(task: Task, state: HillClimbState):
+    """The key of this step's random starts (shared by its batch), `None` without
+    robustness."""
+    if task.robustness is None:
+        return None
+    return _fold(state.key, state.step)
+
+
+@eqx.filter_jit
+def _fold(key, step):
+    return jr.fold_in(jr.fold_in(key, _STARTS), step)
 
 
 @eqx.filter_jit

@@ -16,7 +16,7 @@ from .._control.base import AbstractController
 from .._sim.compile import simulation_jit
 from .._sim.execution import batch_size, padded, share
 from .._task import Task
-from .hill_climb import SearchResult, _check_positive_int
+from .hill_climb import _STARTS, SearchResult, _check_positive_int
 from .history import History
 
 
@@ -133,12 +133,14 @@ class SerialSearch(eqx.Module):
                 "heuristic to enrich with (allowed: enrich = 0)"
             )
         population, keys = _sample(task, key, jnp.arange(seeds) + seed_offset, self.climbers)
-        fitness, motion = _evaluate(task, population)
+        starts = _start_keys(task, keys, self.climbers, 0, 0)
+        fitness, motion = _evaluate(task, population, starts)
         state = _start(population, fitness, keys, motion)
         rounds = [state.fitness]
         for k in range(self.enrich):
             candidates = _enriched(task, state, k)
-            fitness, motion = _evaluate(task, candidates)
+            starts = _start_keys(task, keys, self.climbers, 1, k)
+            fitness, motion = _evaluate(task, candidates, starts)
             state = _replace(state, candidates, fitness, motion)
             rounds.append(state.fitness)
         return state, jnp.stack(rounds)
@@ -176,15 +178,37 @@ class SerialSearch(eqx.Module):
         """ask, evaluate, tell. Returns the new state and the fitness of this generation's
         mutants, `(seeds, climbers)`."""
         mutants = self.ask(task, state)
-        fitness, motion = _evaluate(task, mutants)
+        starts = _start_keys(task, state.key, state.fitness.shape[1], 2, state.generation)
+        fitness, motion = _evaluate(task, mutants, starts)
         return self.tell(state, mutants, fitness, motion), fitness.reshape(state.fitness.shape)
 
 
-def _evaluate(task: Task, population):
-    """Fitness, and the perceived senses when the family's mutation uses the motion."""
+def _evaluate(task: Task, population, starts=None):
+    """Fitness, and the perceived senses when the family's mutation uses the motion
+    (`starts`: the keys of the random starts of a task with robustness)."""
     if type(task.space).uses_motion:
-        return task.evaluate_sensed(population)
-    return task.evaluate(population), None
+        return task.evaluate_sensed(population, key=starts)
+    return task.evaluate(population, key=starts), None
+
+
+# Random starts (`Task.robustness`) draw from a stream of each seed's key apart from its
+# mutations: stream 0 the initial set, 1 the enrichment rounds, 2 the generations.
+
+
+def _start_keys(task: Task, keys, climbers: int, stream: int, index):
+    """The key of the random starts of every controller of one evaluation (seed-major),
+    `None` without robustness: all the climbers of seed `s` share
+    `fold_in(fold_in(fold_in(keys[s], _STARTS), stream), index)`, so they compete from the
+    same starts, and a seed draws them alike alone or among others."""
+    if task.robustness is None:
+        return None
+    return _seed_keys(keys, climbers, stream, jnp.asarray(index, dtype=jnp.int32))
+
+
+@eqx.filter_jit
+def _seed_keys(keys, climbers: int, stream: int, index):
+    one = lambda k: jr.fold_in(jr.fold_in(jr.fold_in(k, _STARTS), stream), index)
+    return jnp.repeat(jax.vmap(one)(keys), climbers)
 
 
 def _flat(tree):

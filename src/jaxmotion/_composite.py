@@ -1,0 +1,201 @@
+"""`Composite`: a composite motion to tune (the second paper's section 3): controllers run one
+after another on one body, scored by a script, with the transition-point search."""
+
+from collections.abc import Mapping
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
+
+from ._body.base import AbstractBody, BodyState
+from ._control.base import AbstractController
+from ._control.sequence import Sequence
+from ._objective.script import Script
+from ._search.transitions import TransitionSearchResult, transition_search
+from ._sim import execution
+from ._sim.simulate import SolverName, simulate, simulate_batch, time_grid
+from ._sim.trajectory import Trajectory
+from ._world import World
+
+
+class Composite(eqx.Module):
+    """A composite motion: named controllers run in turn on one body (a `Sequence`), scored
+    by a composite-motion script (`Script`, the second paper's Table 4) whose phases are the
+    controllers' names; what is tuned is when each controller hands over to the next.
+
+    **Arguments:**
+
+    - `body`, `world`: the character and its world.
+    - `controllers`: the phases in order, a mapping of names to controllers (`{"cartwheel":
+        ..., "jump": ..., "shuffle": ...}`); the script's phases are these names.
+    - `script`: the script's text (or a `Script` with these phases and tick).
+    - `duration`: the whole motion's length, s.
+    - `dt`, `control_dt`: the simulation's step and control period (a tick), s; the
+        script's `delta_time` counts ticks.
+    - `initial_state`: the body's state at the start (default: the rest pose).
+
+    Samples are saved at every tick, so the script reads each phase exactly from its first
+    tick to its last.
+
+    **Raises:** `ValueError` (or `ScriptError`) for a bad time, no controllers, a name that
+    is not an identifier, or a script that does not parse, before anything compiles.
+    """
+
+    body: AbstractBody
+    world: World
+    controllers: tuple[AbstractController, ...]
+    script: Script
+    duration: float = eqx.field(static=True)
+    dt: float = eqx.field(static=True)
+    control_dt: float = eqx.field(static=True)
+    initial_state: BodyState | None
+
+    def __init__(
+        self,
+        body: AbstractBody,
+        world: World,
+        controllers: Mapping[str, AbstractController],
+        script: str | Script,
+        duration: float,
+        dt: float = 1e-3,
+        *,
+        control_dt: float | None = None,
+        initial_state: BodyState | None = None,
+    ):
+        if not isinstance(controllers, Mapping) or not controllers:
+            raise ValueError(
+                "Composite.controllers must be a non-empty mapping of phase names to "
+                f"controllers; got {controllers!r}"
+            )
+        grid = time_grid(duration, dt, None, control_dt)
+        names = tuple(controllers)
+        if isinstance(script, Script):
+            if script.phases != names or script.tick != grid.control_dt:
+                raise ValueError(
+                    f"Composite.script has phases {script.phases} and tick {script.tick}; "
+                    f"allowed: the controllers' names {names} and the control period "
+                    f"{grid.control_dt}"
+                )
+        else:
+            script = Script(script, names, grid.control_dt)
+        Sequence(tuple(controllers.values()), np.zeros(len(names) - 1))  # checks them
+        self.body = body
+        self.world = world
+        self.controllers = tuple(controllers.values())
+        self.script = script
+        self.duration = float(duration)
+        self.dt = float(dt)
+        self.control_dt = grid.control_dt
+        self.initial_state = initial_state
+
+    @property
+    def phases(self) -> tuple[str, ...]:
+        return self.script.phases
+
+    def equally_spaced(self) -> np.ndarray:
+        """The paper's default transitions: the phases share the duration equally (on the
+        tick grid)."""
+        k = len(self.controllers)
+        ticks = np.round(np.arange(1, k) * self.duration / k / self.control_dt)
+        return ticks * self.control_dt
+
+    def sequence(self, transitions: Float[ArrayLike, " K-1"]) -> Sequence:
+        """The controllers as one `Sequence` switching at `transitions` (s)."""
+        return Sequence(self.controllers, transitions)
+
+    def evaluate(self, transitions: Float[ArrayLike, "arrays K-1"]) -> Float[Array, " arrays"]:
+        """The script's `total` for each transition array, simulated in one call (a
+        blown-up run scores `-inf`)."""
+        transitions = jnp.asarray(transitions, dtype=float)
+        if transitions.ndim != 2 or transitions.shape[1] != len(self.controllers) - 1:
+            raise ValueError(
+                f"transitions have shape {transitions.shape}; allowed: (arrays, "
+                f"{len(self.controllers) - 1})"
+            )
+        return execution.run(_fitness, self, _sequences(self.controllers, transitions))
+
+    def trajectory(
+        self, transitions: Float[ArrayLike, " K-1"], *, solver: SolverName = "symplectic"
+    ) -> Trajectory:
+        """The motion with these transitions (the search's own simulation with the
+        default solver)."""
+        transitions = jnp.asarray(transitions, dtype=float)
+        if solver == "symplectic":
+            one = _sequences(self.controllers, transitions[None])
+            out = execution.run(_trajectories, self, one)
+            return jax.tree_util.tree_map(lambda a: a[0], out)
+        return simulate(
+            self.body,
+            self.sequence(transitions),
+            self.world,
+            self.duration,
+            dt=self.dt,
+            save_dt=self.control_dt,
+            control_dt=self.control_dt,
+            solver=solver,
+            initial_state=self.initial_state,
+        )
+
+    def values(self, transitions: Float[ArrayLike, " K-1"]) -> dict[str, float]:
+        """Every value the script assigns (its per-phase credits and `total`) for these
+        transitions."""
+        trajectory = self.trajectory(transitions)
+        values = self.script.values(trajectory, jnp.asarray(transitions, dtype=float))
+        return {name: float(v) for name, v in values.items()}
+
+    def search(
+        self,
+        *,
+        key: PRNGKeyArray,
+        initial: Float[ArrayLike, " K-1"] | None = None,
+        num_arrays: int = 16,
+        rounds: int = 16,
+        mutations: int = 4,
+        callback=None,
+    ) -> TransitionSearchResult:
+        """The transition-point search (second paper, Figure 5; see `transition_search`)
+        from `initial` (default: equally spaced), on the tick grid."""
+        return transition_search(
+            self.evaluate,
+            self.duration,
+            key=key,
+            initial=self.equally_spaced() if initial is None else initial,
+            num_arrays=num_arrays,
+            rounds=rounds,
+            mutations=mutations,
+            tick=self.control_dt,
+            callback=callback,
+        )
+
+
+def _sequences(controllers, transitions) -> Sequence:
+    """A batch of sequences (leading axis), one per transition array."""
+    template = Sequence(controllers, np.zeros(len(controllers) - 1))
+    return jax.vmap(lambda t: eqx.tree_at(lambda s: s.transitions, template, t))(transitions)
+
+
+def _simulated(composite: Composite, sequences) -> Trajectory:
+    return simulate_batch(
+        composite.body,
+        sequences,
+        composite.world,
+        composite.duration,
+        dt=composite.dt,
+        save_dt=composite.control_dt,
+        control_dt=composite.control_dt,
+        initial_state=composite.initial_state,
+    )
+
+
+def _fitness(composite: Composite, sequences):
+    trajectories = _simulated(composite, sequences)
+    return jax.vmap(composite.script)(trajectories, sequences.transitions)
+
+
+def _trajectories(composite: Composite, sequences) -> Trajectory:
+    return _simulated(composite, sequences)
+
+
+__all__ = ["Composite"]

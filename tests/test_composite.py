@@ -1,0 +1,72 @@
+"""`Composite`: controllers in turn scored by a script, and the transition-point search on a
+real simulation."""
+
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+import pytest
+
+import jaxmotion as jm
+
+WORLD = jm.World(floor_stiffness=1.0e4, floor_damping=100.0, friction_velocity=0.1)
+DT = 4e-3
+DURATION = 0.4  # s: 100 ticks
+SCRIPT_RTOL = 1e-5  # the script inside the search's program and outside it round alike
+
+
+@pytest.fixture(scope="module")
+def composite():
+    body = jm.figures.star_man()
+    space = jm.TimeBSRSpace(body, num_rules=3, t_per=0.2, tau_min=0.02, tau_max=0.2)
+    controllers = {"kick": space.sample(key=jr.key(0)), "roll": space.sample(key=jr.key(1))}
+    script = """
+    # the kick should last 60 ticks; credit the roll's travel a little
+    kick = delta_time ?= 60
+    roll = 0.01 * delta_cm_x
+    total = kick + roll
+    """
+    return jm.Composite(body, WORLD, controllers, script, DURATION, DT)
+
+
+def test_evaluate_is_the_script_of_the_sequences_motion(composite):
+    transitions = jnp.array([[0.1], [0.24], [0.36]])
+    fitness = composite.evaluate(transitions)
+    for i, t in enumerate(transitions):
+        trajectory = composite.trajectory(t)
+        values = composite.script.values(trajectory, t)
+        np.testing.assert_allclose(fitness[i], values["total"], rtol=SCRIPT_RTOL)
+        # The kick's credit depends only on its length: 1 at 60 ticks (0.24 s).
+        assert (values["kick"] == 1.0) == (i == 1)
+    np.testing.assert_allclose(
+        composite.values(transitions[1])["total"], fitness[1], rtol=SCRIPT_RTOL
+    )
+
+
+def test_the_default_transitions_share_the_duration(composite):
+    np.testing.assert_allclose(composite.equally_spaced(), [0.2], rtol=1e-12)
+
+
+def test_the_search_finds_the_planted_transition_and_never_loses(composite):
+    """The script's kick credit peaks at a transition of 60 ticks; the roll's travel is
+    worth at most a few hundredths: the search from the equally spaced start (50 ticks)
+    moves the transition to within a few ticks of 60 and never returns worse than its
+    start."""
+    result = composite.search(key=jr.key(0), num_arrays=4, rounds=3, mutations=2)
+    start = composite.evaluate(composite.equally_spaced()[None])[0]
+    assert result.best_fitness >= float(start)
+    assert abs(float(result.best[0]) / DT - 60) <= 5
+    assert result.evaluations == 4 + 3 * 2 * 4
+
+
+def test_bad_composites_are_refused():
+    body = jm.figures.star_man()
+    space = jm.TimeBSRSpace(body, num_rules=3, t_per=0.2)
+    c = space.sample(key=jr.key(0))
+    with pytest.raises(ValueError, match="non-empty mapping"):
+        jm.Composite(body, WORLD, [c, c], "total = 1", 1.0, DT)
+    with pytest.raises(jm.ScriptError, match="line 1"):
+        jm.Composite(body, WORLD, {"a": c, "b": c}, "total = a.nope", 1.0, DT)
+    with pytest.raises(ValueError, match="duration"):
+        jm.Composite(body, WORLD, {"a": c}, "total = 1", -1.0, DT)
+    with pytest.raises(ValueError, match=r"allowed: \(arrays, 1\)"):
+        jm.Composite(body, WORLD, {"a": c, "b": c}, "total = 1", 1.0, DT).evaluate(jnp.zeros(3))
