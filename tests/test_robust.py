@@ -110,6 +110,13 @@ def robust_task():
     )
 
 
+def like(task, **changes):
+    """The task with only `changes` (a start, a robustness) of its own."""
+    return jm.Task(
+        task.body, task.world, task.space, task.objective, task.duration, task.dt, **changes
+    )
+
+
 def test_robust_fitness_is_the_mean_or_worst_over_the_starts(robust_task):
     """A controller's robust fitness is the mean (or the minimum) of its fitness from each
     random start, each computed by a plain task starting there; the same key gives the
@@ -122,28 +129,13 @@ def test_robust_fitness_is_the_mean_or_worst_over_the_starts(robust_task):
     assert not np.array_equal(fitness, task.evaluate(params, key=jr.key(4)))
     starts = task.random_starts(key)
     plain = [
-        jm.Task(
-            task.body,
-            task.world,
-            task.space,
-            task.objective,
-            task.duration,
-            task.dt,
-            initial_state=one(starts, k),
-        ).evaluate(params)
+        like(task, initial_state=one(starts, k)).evaluate(params)
         for k in range(task.robustness.samples)
     ]
     per_start = np.stack([np.asarray(p) for p in plain], axis=-1)
     np.testing.assert_allclose(fitness, per_start.mean(axis=-1), rtol=1e-6)
-    worst = jm.Task(
-        task.body,
-        task.world,
-        task.space,
-        task.objective,
-        task.duration,
-        task.dt,
-        robustness=jm.Robustness(samples=3, reduce="worst"),
-    ).evaluate(params, key=key)
+    worst = like(task, robustness=jm.Robustness(samples=3, reduce="worst"))
+    worst = worst.evaluate(params, key=key)
     np.testing.assert_array_equal(worst, per_start.min(axis=-1))
     # One key per controller: the controllers given the shared key score as above.
     keys = jnp.stack([key, jr.key(9), key, key])
