@@ -161,3 +161,32 @@ def test_a_robust_serial_search_is_reproducible_and_improves(robust_task):
     assert a.best_fitness == b.best_fitness
     np.testing.assert_array_equal(a.history.fitness, b.history.fitness)
     assert a.best_fitness >= float(np.max(np.asarray(a.history.fitness)[:4]))
+
+
+def test_a_config_asks_for_robustness_and_round_trips():
+    """`[robustness]` builds the task's `Robustness` (defaults filled in, written back in the
+    resolved config); a bad key or value names itself and what is allowed."""
+    import tomllib
+
+    import tomli_w
+
+    from jaxmotion.experiment import ConfigError, parse_config
+
+    raw = {
+        "body": {"figure": "star_man"},
+        "controller": {"family": "sense_bsr", "num_rules": 4},
+        "objective": {"forward": 1.0},
+        "simulation": {"duration": 1.0, "dt": 0.004},
+        "search": {"algorithm": "serial_search"},
+        "robustness": {"samples": 3, "reduce": "worst"},
+    }
+    e = parse_config(raw)
+    assert e.task.robustness == jm.Robustness(samples=3, reduce="worst")
+    assert e.config["robustness"]["angles"] == 0.1
+    again = parse_config(tomllib.loads(tomli_w.dumps(e.config)))
+    assert again.config == e.config and again.task.robustness == e.task.robustness
+    with pytest.raises(ConfigError, match=r"\[robustness\] reduce = 'median'.*\"mean\" or"):
+        parse_config({**raw, "robustness": {"reduce": "median"}})
+    with pytest.raises(ConfigError, match=r"\[robustness\].*'spin'"):
+        parse_config({**raw, "robustness": {"spin": 0.1}})
+    assert parse_config({k: v for k, v in raw.items() if k != "robustness"}).task.robustness is None

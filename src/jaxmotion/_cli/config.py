@@ -17,6 +17,7 @@ from .._control.regimes import RegimesSpace
 from .._control.sense_bsr import SenseBSRSpace
 from .._control.time_bsr import TimeBSRSpace
 from .._objective.registry import Objective
+from .._sim.robust import Robustness
 from .._sim.simulate import time_grid
 from .._task import Task
 from .._world import World
@@ -286,6 +287,14 @@ SERIAL_SEARCH = {
 
 SEARCHES = {"parallel_hill_climb": SEARCH, "serial_search": SERIAL_SEARCH}
 
+ROBUSTNESS = {
+    "samples": Key("integer", 4, lambda v: v >= 1, ">= 1 (random starts per evaluation)"),
+    "angles": Key("number", 0.1, _nonnegative, ">= 0 (rad, each free joint angle)"),
+    "orientation": Key("number", 0.1, _nonnegative, ">= 0 (rad, the root's turn)"),
+    "velocity": Key("number", 0.2, _nonnegative, ">= 0 (m/s, each component)"),
+    "reduce": Key("string", "mean", lambda v: v in ("mean", "worst"), '"mean" or "worst"'),
+}
+
 
 def _search_schema(table: Any) -> dict[str, Key]:
     algorithm = (
@@ -368,6 +377,7 @@ SECTIONS = (
     "objective",
     "simulation",
     "search",
+    "robustness",
     "output",
     "check",
 )
@@ -469,6 +479,9 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
     search_table = raw.get("search", {})
     search_cfg = _read_section("[search]", search_table, _search_schema(search_table))
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
+    robust_cfg = None
+    if "robustness" in raw:
+        robust_cfg = _read_section("[robustness]", raw["robustness"], ROBUSTNESS)
     check_cfg = _read_section("[check]", raw["check"], CHECK) if "check" in raw else None
     if check_cfg is not None and check_cfg["motion"] in SEQUENCE_CHECKS:
         motion = check_cfg["motion"]
@@ -532,6 +545,7 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
         duration=simulation_cfg["duration"],
         dt=simulation_cfg["dt"],
         save_dt=simulation_cfg["save_dt"],
+        robustness=None if robust_cfg is None else Robustness(**robust_cfg),
     )
     resolved.update(
         body=body_cfg,
@@ -542,6 +556,8 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
         search=search_cfg,
         output=output_cfg,
     )
+    if robust_cfg is not None:
+        resolved["robustness"] = robust_cfg
     if check_cfg is not None:
         resolved["check"] = check_cfg
         _check_needs(check_cfg, body, body_cfg)
@@ -558,7 +574,7 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
 
 # ------------------------------------------------------------------------------- stages
 
-STAGE_SECTIONS = ("controller", "objective", "simulation", "search", "check")
+STAGE_SECTIONS = ("controller", "objective", "simulation", "search", "robustness", "check")
 """The tables a `[[stage]]` may hold; all but `check` are merged key by key over the
 top-level table of the same name."""
 

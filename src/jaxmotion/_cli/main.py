@@ -15,6 +15,8 @@ jaxmotion: automatic motion synthesis for animated characters.
   python -m jaxmotion replay RESULTS_DIR   re-simulate a run's best controller and report it
   python -m jaxmotion compare CONFIG.toml  stochastic search vs search + gradient refinement
                                            on equal budgets, over several seeds
+  python -m jaxmotion compose CONFIG.toml  a composite motion: controllers found earlier, in
+                                           turn, their transitions searched (see configs/)
 
 A run writes a results folder: config.toml (resolved), best_controller.json, history.csv (one
 row per evaluation), learning_plot.png, motion.gif and summary.json. Fitness is maximised.
@@ -88,8 +90,55 @@ def _parser() -> argparse.ArgumentParser:
     compare.add_argument("--evaluations", type=int, help="override [search] evaluations")
     compare.add_argument("--batch", type=int, help="override [search] batch")
     compare.add_argument("--quiet", action="store_true")
+    compose = sub.add_parser(
+        "compose",
+        help="a composite motion: controllers in turn, transitions searched",
+        description="Concatenate controllers found earlier (results folders, or configs run "
+        "first) into a composite motion scored by the config's script, and search the "
+        "transition points (the second paper's Figure 5). Writes a results folder: "
+        "config.toml, best_controller.json (the sequence), best_transitions.json, history.csv, "
+        "learning_plot.png, motion.gif and summary.json.",
+    )
+    compose.add_argument("config", help="a compose config, e.g. configs/starman_composite.toml")
+    compose.add_argument("--out", metavar="DIR", help="results directory")
+    compose.add_argument("--seed", type=int, help="override the config's seed")
+    compose.add_argument("--no-animation", action="store_true", help="do not write motion.gif")
+    compose.add_argument("--quiet", action="store_true", help="no progress or summary")
     run_options(p)  # `python -m jaxmotion [options]` runs the default experiment
     return p
+
+
+def _compose(args) -> int:
+    from .compose import read_compose_config, run_compose
+    from .config import load_config
+    from .results import run_experiment
+
+    say = (lambda _: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
+
+    def run_component(path: Path) -> Path:
+        say(f"running {path} first")
+        folder = run_experiment(
+            load_config(path), directory=args.out, progress=not args.quiet, animation=False
+        )
+        say(f"  -> {folder}")
+        return folder
+
+    compose = read_compose_config(args.config, run_component=run_component)
+    if args.seed is not None:
+        from dataclasses import replace
+
+        compose = replace(compose, seed=args.seed, config={**compose.config, "seed": args.seed})
+    folder = run_compose(
+        compose,
+        directory=args.out,
+        animation=False if args.no_animation else None,
+        report=say,
+    )
+    if not args.quiet:
+        summary = json.loads((folder / "summary.json").read_text())
+        print(json.dumps({k: summary[k] for k in ("best", "equally_spaced")}, indent=2))
+    print(folder)
+    return 0
 
 
 def _overrides(raw: dict, args) -> dict:
@@ -390,6 +439,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "compare":
             return _compare(args)
+        if args.command == "compose":
+            return _compose(args)
         return _replay(args)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)

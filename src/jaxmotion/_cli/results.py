@@ -486,8 +486,21 @@ def replay_stages(
 def fitness_of(task, controller) -> float:
     """A controller's fitness computed exactly as the search computed it: by `task.evaluate`
     (the objective compiled together with the simulation; summing a term's samples in another
-    compiled function may round its last bit differently)."""
+    compiled function may round its last bit differently). For a task with robustness, the
+    fitness from the task's own start, unperturbed (the search scored random starts)."""
     one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], controller)
+    if task.robustness is not None:
+        task = Task(
+            task.body,
+            task.world,
+            task.space,
+            task.objective,
+            task.duration,
+            task.dt,
+            task.save_dt,
+            control_dt=task.control_dt,
+            initial_state=task.initial_state,
+        )
     return float(task.evaluate(one)[0])
 
 

@@ -1,0 +1,140 @@
+"""`python -m jaxmotion compose`: controllers found by earlier runs, concatenated, their
+transitions searched; the config checked before anything runs; the results folder."""
+
+import json
+import tomllib
+
+import numpy as np
+import pytest
+import tomli_w
+
+import jaxmotion as jm
+from jaxmotion._cli.compose import _check_shared, parse_compose_config, phase_trajectories
+from jaxmotion._cli.main import _compose, _parser
+from jaxmotion.experiment import ConfigError, controller_from_dict, parse_config, run_experiment
+
+COMPONENT = {
+    "body": {"figure": "star_man"},
+    "world": {"floor_stiffness": 1.0e4, "floor_damping": 100.0, "friction_velocity": 0.1},
+    "controller": {"family": "time_bsr", "num_rules": 3, "t_per": 0.2},
+    "objective": {"forward": 1.0},
+    "simulation": {"duration": 0.4, "dt": 0.004},
+    "search": {"algorithm": "serial_search", "climbers": 2, "generations": 2},
+    "output": {"animation": False},
+}
+SCRIPT = """
+# the kick should last 40 ticks, then the roll travels
+kick = delta_time ?= 40
+roll = 1.0 + delta_cm_x
+total = kick * roll
+"""
+
+
+@pytest.fixture(scope="module")
+def components(tmp_path_factory):
+    """Two results folders of tiny runs (one compilation: the same shapes, two seeds)."""
+    out = tmp_path_factory.mktemp("components")
+    folders = []
+    for seed in (0, 1):
+        experiment = parse_config({**COMPONENT, "seed": seed}, name=f"part{seed}")
+        folders.append(run_experiment(experiment, directory=out, progress=False))
+    return folders
+
+
+def compose_raw(folders, **changes):
+    raw = {
+        "name": "duo",
+        "phase": [
+            {"name": "kick", "results": str(folders[0]), "ticks": 50},
+            {"name": "roll", "results": str(folders[1]), "ticks": 50},
+        ],
+        "script": {"text": SCRIPT},
+        "search": {"arrays": 4, "rounds": 2, "mutations": 1},
+    }
+    raw.update(changes)
+    return raw
+
+
+def test_compose_writes_a_searched_composite(components, tmp_path):
+    """The CLI runs the search and writes its folder: the best transitions score at least
+    the start, the saved sequence holds the components' controllers at those transitions,
+    the summary reports each phase's measures, and the resolved config reads back."""
+    config = tmp_path / "duo.toml"
+    config.write_text(tomli_w.dumps(compose_raw(components)))
+    out = tmp_path / "results"
+    # The CLI's own parsing and command (`main` would also set JAX's devices, which a test
+    # process has started already).
+    args = _parser().parse_args(["compose", str(config), "--out", str(out), "--no-animation"])
+    assert args.command == "compose"
+    args.quiet = True
+    assert _compose(args) == 0
+    (folder,) = out.iterdir()
+    names = {p.name for p in folder.iterdir()}
+    assert {
+        "config.toml",
+        "best_controller.json",
+        "best_transitions.json",
+        "history.csv",
+        "learning_plot.png",
+        "summary.json",
+    } <= names
+    summary = json.loads((folder / "summary.json").read_text())
+    best, start = summary["best"], summary["start"]
+    assert best["fitness"] >= start["fitness"]
+    assert start["ticks"] == [50]
+    assert summary["evaluations"] == 4 + 2 * 1 * 4
+    # delta_time in the summary is the transition's tick count, the phases' sum the whole.
+    ticks = [best["phases"][p]["delta_time"] for p in ("kick", "roll")]
+    assert ticks == [best["ticks"][0], 100 - best["ticks"][0]]
+    assert set(best["values"]) == {"kick", "roll", "total"}
+    sequence = controller_from_dict(json.loads((folder / "best_controller.json").read_text()))
+    assert isinstance(sequence, jm.Sequence)
+    np.testing.assert_allclose(sequence.transitions, best["transitions"])
+    again = parse_compose_config(tomllib.loads((folder / "config.toml").read_text()))
+    assert again.config == tomllib.loads((folder / "config.toml").read_text())
+
+
+def test_phase_cuts_rejoin_the_motion(components):
+    compose = parse_compose_config(compose_raw(components))
+    trajectory = compose.composite.trajectory(np.array([0.2]))
+    parts = phase_trajectories(trajectory, [0.2])
+    assert [len(p.ts) for p in parts] == [51, 51]  # samples every tick; the cut shared
+    np.testing.assert_array_equal(parts[0].points[-1], parts[1].points[0])
+    assert float(parts[1].ts[0]) == 0.0
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (dict(phase=[]), r"needs \[\[phase\]\] tables"),
+        (
+            dict(script={"text": "total = kick.nope"}),
+            r"\[script\] text: line 1, column 14: unknown measure 'nope'",
+        ),
+        (dict(search={"arrays": 1}), r"\[search\] arrays = 1"),
+        (dict(oops={"x": 1}), r"unknown section \[oops\]"),
+    ],
+)
+def test_bad_compose_configs_name_what_is_wrong(components, change, match):
+    with pytest.raises(ConfigError, match=match):
+        parse_compose_config(compose_raw(components, **change))
+
+
+def test_a_phase_needs_one_source_and_a_unique_name(components):
+    raw = compose_raw(components)
+    raw["phase"][1] = {"name": "roll", "ticks": 5}
+    with pytest.raises(ConfigError, match="needs exactly one of results"):
+        parse_compose_config(raw)
+    raw["phase"][1] = {"name": "kick", "results": str(components[1]), "ticks": 5}
+    with pytest.raises(ConfigError, match='name = "kick" is used twice'):
+        parse_compose_config(raw)
+    raw["phase"][1] = {"name": "roll", "results": "no/such/folder", "ticks": 5}
+    with pytest.raises(ConfigError, match="no/such/folder"):
+        parse_compose_config(raw)
+
+
+def test_components_must_share_body_world_and_step():
+    a = parse_config(COMPONENT)
+    b = parse_config({**COMPONENT, "world": {**COMPONENT["world"], "friction": 0.5}})
+    with pytest.raises(ConfigError, match=r'phase "b": its \[world\]'):
+        _check_shared([("a", a, None), ("b", b, None)])
