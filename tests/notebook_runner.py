@@ -14,12 +14,17 @@ from nbclient import NotebookClient
 HERE = Path(__file__).resolve().parents[1] / "notebooks"
 NOTEBOOKS = sorted(HERE.glob("*.ipynb"))
 FIGURE_NOTEBOOKS = ("figures.ipynb", "walking.ipynb")  # run by test_notebooks_figures.py
+# Notebooks whose small-budget run still takes a minute or more (several searches compile):
+# run with `-m slow`, as the README's test section says.
+SLOW_NOTEBOOKS = ("walking.ipynb", "composite.ipynb", "stochastic_vs_gradient.ipynb")
 SMALL = {
     "EVALUATIONS": "200",
     "BATCH": "50",
     "DURATION": "1.0",
     "MOTIONS": '("star_man",)',
     "FPS": "4",  # rendering the animations' frames is a large share of a notebook's run
+    "GENERATIONS": "3",
+    "ROUNDS": "1",
 }
 
 

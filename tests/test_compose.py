@@ -138,3 +138,13 @@ def test_components_must_share_body_world_and_step():
     b = parse_config({**COMPONENT, "world": {**COMPONENT["world"], "friction": 0.5}})
     with pytest.raises(ConfigError, match=r'phase "b": its \[world\]'):
         _check_shared([("a", a, None), ("b", b, None)])
+
+
+def test_a_control_period_longer_than_the_step_is_the_scripts_tick():
+    """`[simulation] control_dt` sets the task's control period (the composite's tick);
+    one that is not a whole number of steps names itself."""
+    raw = {**COMPONENT, "simulation": {"duration": 0.4, "dt": 0.004, "control_dt": 0.02}}
+    assert parse_config(raw).task.control_dt == 0.02
+    bad = {**COMPONENT, "simulation": {"duration": 0.4, "dt": 0.004, "control_dt": 0.006}}
+    with pytest.raises(ConfigError, match=r"\[simulation\] control_dt = 0.006"):
+        parse_config(bad)

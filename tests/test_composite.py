@@ -1,5 +1,6 @@
-"""`Composite`: controllers in turn scored by a script, and the transition-point search on a
-real simulation."""
+"""`Composite`: controllers in turn scored by a script, the transition-point search on a
+real simulation, and the editor, driven headlessly through the widgets' Python API (a
+slider moved re-simulates and redraws, the search button moves the sliders to its result)."""
 
 import jax.numpy as jnp
 import jax.random as jr
@@ -70,3 +71,44 @@ def test_bad_composites_are_refused():
         jm.Composite(body, WORLD, {"a": c}, "total = 1", -1.0, DT)
     with pytest.raises(ValueError, match=r"allowed: \(arrays, 1\)"):
         jm.Composite(body, WORLD, {"a": c, "b": c}, "total = 1", 1.0, DT).evaluate(jnp.zeros(3))
+
+
+@pytest.fixture(scope="module")
+def editor(composite):
+    return jm.viz.composite_editor(
+        composite, frames=3, search=dict(num_arrays=4, rounds=3, mutations=2)
+    )
+
+
+def test_the_editor_starts_equally_spaced_and_draws(editor):
+    np.testing.assert_allclose(editor.transitions, [0.2])
+    assert editor.sliders[0].description == "kick → roll"
+    assert bytes(editor.picture.value).startswith(b"\x89PNG")
+    assert set(editor.values) == {"kick", "roll", "total"}
+
+
+def test_moving_a_slider_resimulates_and_updates_the_values(editor):
+    before = np.asarray(editor.trajectory.points).copy()
+    editor.sliders[0].value = 0.24  # 60 ticks: the kick's credit is 1
+    assert editor.values["kick"] == pytest.approx(1.0, abs=1e-6)
+    after = np.asarray(editor.trajectory.points)
+    assert not np.array_equal(before, after)
+    expected = editor.composite.values(np.array([0.24]))
+    assert editor.values == expected
+
+
+def test_the_search_button_moves_the_sliders_to_its_result(editor):
+    editor.sliders[0].value = 0.1
+    low = editor.values["total"]
+    editor.search_button.click()
+    assert editor.transitions[0] != pytest.approx(0.1)
+    assert editor.values["total"] >= low
+    assert abs(editor.transitions[0] / DT - 60) <= 5  # the planted optimum's neighbourhood
+    assert editor.status.value.startswith("searched")
+
+
+def test_animate_renders_the_motion_as_a_gif_and_a_move_clears_it(editor):
+    editor.animate(fps=5)
+    assert bytes(editor.movie.value).startswith(b"GIF8")
+    editor.sliders[0].value = 0.2
+    assert bytes(editor.movie.value) == b""

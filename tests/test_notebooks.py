@@ -4,7 +4,7 @@
 import json
 
 import pytest
-from notebook_runner import FIGURE_NOTEBOOKS, NOTEBOOKS, run_notebook
+from notebook_runner import FIGURE_NOTEBOOKS, NOTEBOOKS, SLOW_NOTEBOOKS, run_notebook
 
 
 def test_there_are_notebooks():
@@ -12,6 +12,7 @@ def test_there_are_notebooks():
         "quickstart.ipynb",
         "reflexes.ipynb",
         "paper000_motions.ipynb",
+        "composite.ipynb",
         *FIGURE_NOTEBOOKS,
     }
 
@@ -24,7 +25,13 @@ def test_notebook_is_committed_without_outputs(path):
 
 
 @pytest.mark.parametrize(
-    "path", [p for p in NOTEBOOKS if p.name not in FIGURE_NOTEBOOKS], ids=lambda p: p.name
+    "path",
+    [
+        pytest.param(p, marks=pytest.mark.slow) if p.name in SLOW_NOTEBOOKS else p
+        for p in NOTEBOOKS
+        if p.name not in FIGURE_NOTEBOOKS
+    ],
+    ids=lambda p: p.name,
 )
 def test_notebook_runs(path):
     assert run_notebook(path) == []

@@ -2,14 +2,14 @@
 they run beside the other notebooks; see `notebook_runner`)."""
 
 import pytest
-from notebook_runner import FIGURE_NOTEBOOKS, HERE, run_notebook
+from notebook_runner import FIGURE_NOTEBOOKS, HERE, SLOW_NOTEBOOKS, run_notebook
 
 
 @pytest.mark.parametrize(
     "name",
     # Bob's sense-based search compiles for about a minute: `-m slow`.
     [
-        pytest.param(n, marks=pytest.mark.slow) if n == "walking.ipynb" else n
+        pytest.param(n, marks=pytest.mark.slow) if n in SLOW_NOTEBOOKS else n
         for n in FIGURE_NOTEBOOKS
     ],
 )

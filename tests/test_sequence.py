@@ -17,6 +17,7 @@ from jaxmotion.experiment import controller_from_dict, controller_to_dict
 WORLD = jm.World(floor_stiffness=1.0e4, floor_damping=100.0, friction_velocity=0.1)
 DT = 4e-3
 PHASE = 0.32  # s: every phase lasts 0 or this, so the references need few compilations
+LAYOUTS = 1e-4  # m: the unbatched and batch-last layouts round differently in the last bits
 
 
 @pytest.fixture(scope="module")
@@ -48,21 +49,16 @@ def task_for(body, space, duration, initial_state=None):
     )
 
 
-def one_after_another(body, space, controllers, transitions, duration, batched=True):
+def one_after_another(body, space, controllers, transitions, duration):
     """The reference: controller k simulated alone from where controller k - 1 left the
-    body, for its phase's length; the parts joined. `batched`: in the batched layout
-    (`Task.simulate`), else the unbatched one (`jaxmotion.simulate`), which rounds
-    differently in the last bits."""
+    body, for its phase's length; the parts joined."""
     bounds = [0.0, *transitions, duration]
     parts, start = [], None
     for k, c in enumerate(controllers):
         length = round(bounds[k + 1] - bounds[k], 9)
         if length == 0:
             continue  # a phase of no length: the controller never acts
-        if batched:
-            part = task_for(body, space, length, initial_state=start).simulate(c)
-        else:
-            part = jm.simulate(body, c, WORLD, length, dt=DT, save_dt=DT, initial_state=start)
+        part = task_for(body, space, length, initial_state=start).simulate(c)
         parts.append(part)
         start = part.final.body
     return np.concatenate(
@@ -92,15 +88,17 @@ def test_a_batch_of_sequences_is_its_controllers_one_after_another_bitwise(star_
         np.testing.assert_array_equal(np.asarray(out.points[i]), ref, err_msg=f"transitions {tr}")
 
 
-def test_one_sequence_is_its_controllers_one_after_another_bitwise(star_man):
-    """`jaxmotion.simulate` of one sequence (the unbatched layout) is bitwise its
-    controllers one after another in that layout."""
+def test_one_sequence_alone_moves_as_in_a_batch(star_man):
+    """`jaxmotion.simulate` of one sequence (the unbatched layout, scalar phases) switches
+    where the batch does and moves alike, to the rounding in which the two layouts differ
+    (chaotic contact amplifies it, so only over a short motion)."""
     body, space, controllers = star_man
     duration = 2 * PHASE
     seq = jm.Sequence(controllers[1:], [PHASE])
     alone = jm.simulate(body, seq, WORLD, duration, dt=DT, save_dt=DT)
-    ref = one_after_another(body, space, controllers[1:], [PHASE], duration, batched=False)
-    np.testing.assert_array_equal(np.asarray(alone.points), ref)
+    batch = task_for(body, space, duration).simulate(seq)
+    assert int(alone.final.controller.discrete.phase) == 1
+    np.testing.assert_allclose(alone.points, batch.points, atol=LAYOUTS)
 
 
 def test_reads_senses_only_when_a_controller_does(star_man):

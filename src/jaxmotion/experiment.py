@@ -1,10 +1,18 @@
 """Experiments from TOML configs: load, run, and read back results folders; multi-stage
-(seriatim) experiments, each stage starting where the previous stage's best motion ended.
+(seriatim) experiments, each stage starting where the previous stage's best motion ended;
+composite motions (`python -m jaxmotion compose`).
 
 This is the config/IO layer (the library core never touches disk); `python -m jaxmotion`
 is built on it.
 """
 
+from ._cli.compose import ComposeConfig as ComposeConfig
+from ._cli.compose import check_compose_config as check_compose_config
+from ._cli.compose import parse_compose_config as parse_compose_config
+from ._cli.compose import phase_measures as phase_measures
+from ._cli.compose import phase_trajectories as phase_trajectories
+from ._cli.compose import read_compose_config as read_compose_config
+from ._cli.compose import run_compose as run_compose
 from ._cli.config import ConfigError as ConfigError
 from ._cli.config import Experiment as Experiment
 from ._cli.config import default_config_path as default_config_path
@@ -23,8 +31,10 @@ from ._cli.results import start_where as start_where
 from ._sim.trajectory import concatenate_trajectories as concatenate_trajectories
 
 __all__ = [
+    "ComposeConfig",
     "ConfigError",
     "Experiment",
+    "check_compose_config",
     "concatenate_trajectories",
     "controller_from_dict",
     "controller_to_dict",
@@ -32,10 +42,15 @@ __all__ = [
     "load_config",
     "load_result",
     "load_stages",
+    "parse_compose_config",
     "parse_config",
+    "phase_measures",
+    "phase_trajectories",
+    "read_compose_config",
     "read_history_csv",
     "replay_stages",
     "run_check",
+    "run_compose",
     "run_experiment",
     "run_sequence_check",
     "start_where",

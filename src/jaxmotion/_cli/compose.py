@@ -61,7 +61,7 @@ SECTIONS = ("phase", "script", "search", "simulation", "output")
 
 # The keys of a component's config that must agree for its controller to act on the
 # composite's body: the same character, in the same world, at the same step.
-SHARED = (("body", None), ("world", None), ("simulation", "dt"))
+SHARED = (("body", None), ("world", None), ("simulation", "dt"), ("simulation", "control_dt"))
 
 MEASURES = ("delta_time", "delta_seconds", "delta_cm_x", "delta_cm_z", "clearance")
 """The measures the summary reports for every phase (besides the script's own values)."""
@@ -116,6 +116,73 @@ def parse_compose_config(
     """`read_compose_config` on a config already read from TOML."""
     from .results import load_result
 
+    head, phases_cfg, script_cfg, search_cfg, simulation_cfg, output_cfg = _tables(raw, name)
+    ticks = [c["ticks"] for c in phases_cfg]
+    phases = []
+    for i, cfg in enumerate(phases_cfg, start=1):
+        where = f'[[phase]] {i} ("{cfg["name"]}")'
+        if "config" in cfg:
+            source = Path(cfg["config"])
+            load_config(source)  # checked before anything runs
+            if run_component is None:
+                raise ConfigError(f"{where}: config = {cfg['config']!r} would need a run")
+            folder = run_component(source)
+        else:
+            folder = Path(cfg["results"])
+        try:
+            experiment, controller = load_result(folder)
+        except FileNotFoundError as e:
+            raise ConfigError(f"{where}: results = {str(folder)!r}: {e}") from None
+        except ValueError as e:
+            raise ConfigError(f"{where}: results = {str(folder)!r}: {e}") from None
+        phases.append((cfg["name"], experiment, controller))
+    _check_shared(phases)
+    first = phases[0][1]
+    dt = first.task.dt
+    tick = first.task.control_dt or dt
+    duration = simulation_cfg.get("duration", sum(ticks) * tick)
+    try:
+        composite = Composite(
+            first.task.body,
+            first.task.world,
+            {n: c for n, _, c in phases},
+            script_cfg["text"],
+            duration,
+            dt,
+            control_dt=first.task.control_dt,
+        )
+    except ValueError as e:
+        raise ConfigError(f"[simulation] {e}") from None
+    initial = np.cumsum(ticks)[:-1] * composite.control_dt
+    if np.any(initial > duration * (1 + 1e-9)):
+        raise ConfigError(
+            f"the phases' ticks {ticks} end at {initial[-1]:.6g} s, after [simulation] "
+            f"duration = {duration}; allowed: a duration at least that long"
+        )
+    resolved = {
+        **head,
+        "phase": phases_cfg,
+        "script": script_cfg,
+        "search": search_cfg,
+        "simulation": {"duration": duration},
+        "output": output_cfg,
+    }
+    return ComposeConfig(
+        name=head["name"],
+        seed=head["seed"],
+        config=resolved,
+        phases=tuple(phases),
+        search=search_cfg,
+        output=output_cfg,
+        composite=composite,
+        initial=initial,
+    )
+
+
+def _tables(raw: Mapping[str, Any], name: str):
+    """The checked tables of a compose config (no component loaded or run): the top level,
+    the phases, the script (parsed against the phases' names), search, simulation and
+    output."""
     if not isinstance(raw, Mapping):
         raise ConfigError(f"a compose config must be a table; got {raw!r}")
     top = {k: v for k, v in raw.items() if k not in SECTIONS}
@@ -152,71 +219,40 @@ def parse_compose_config(
     search_cfg = _read_section("[search]", raw.get("search", {}), COMPOSE_SEARCH)
     simulation_cfg = _read_section("[simulation]", raw.get("simulation", {}), COMPOSE_SIMULATION)
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
-    # The script is checked before any component is loaded or run.
-    ticks = [c["ticks"] for c in phases_cfg]
     names = tuple(c["name"] for c in phases_cfg)
     try:
         Script(script_cfg["text"], names, 1.0)
     except ScriptError as e:
         raise ConfigError(f"[script] text: {e}") from None
+    return head, phases_cfg, script_cfg, search_cfg, simulation_cfg, output_cfg
 
-    phases = []
+
+def check_compose_config(raw: Mapping[str, Any], *, name: str = "composite") -> str:
+    """Check a compose config without running or loading anything that needs a run: its
+    tables, its script, the component configs it names (each a valid run config, all for
+    one body, world and step) and the results folders it names (present). Returns a
+    one-line description.
+
+    **Raises:** `ConfigError` naming the first bad key, its value and what is allowed.
+    """
+    head, phases_cfg, *_ = _tables(raw, name)
+    configs = []
     for i, cfg in enumerate(phases_cfg, start=1):
         where = f'[[phase]] {i} ("{cfg["name"]}")'
         if "config" in cfg:
-            source = Path(cfg["config"])
-            load_config(source)  # checked before anything runs
-            if run_component is None:
-                raise ConfigError(f"{where}: config = {cfg['config']!r} would need a run")
-            folder = run_component(source)
-        else:
-            folder = Path(cfg["results"])
-        try:
-            experiment, controller = load_result(folder)
-        except FileNotFoundError as e:
-            raise ConfigError(f"{where}: results = {str(folder)!r}: {e}") from None
-        except ValueError as e:
-            raise ConfigError(f"{where}: results = {str(folder)!r}: {e}") from None
-        phases.append((cfg["name"], experiment, controller))
-    _check_shared(phases)
-    first = phases[0][1]
-    dt = first.task.dt
-    duration = simulation_cfg.get("duration", sum(ticks) * dt)
-    try:
-        composite = Composite(
-            first.task.body,
-            first.task.world,
-            {n: c for n, _, c in phases},
-            script_cfg["text"],
-            duration,
-            dt,
-        )
-    except ValueError as e:
-        raise ConfigError(f"[simulation] {e}") from None
-    initial = np.cumsum(ticks)[:-1] * composite.control_dt
-    if np.any(initial > duration * (1 + 1e-9)):
-        raise ConfigError(
-            f"the phases' ticks {ticks} end at {initial[-1]:.6g} s, after [simulation] "
-            f"duration = {duration}; allowed: a duration at least that long"
-        )
-    resolved = {
-        **head,
-        "phase": phases_cfg,
-        "script": script_cfg,
-        "search": search_cfg,
-        "simulation": {"duration": duration},
-        "output": output_cfg,
-    }
-    return ComposeConfig(
-        name=head["name"],
-        seed=head["seed"],
-        config=resolved,
-        phases=tuple(phases),
-        search=search_cfg,
-        output=output_cfg,
-        composite=composite,
-        initial=initial,
-    )
+            try:
+                configs.append((cfg["name"], load_config(cfg["config"]), None))
+            except ConfigError as e:
+                raise ConfigError(f"{where}: {e}") from None
+        elif not (Path(cfg["results"]) / "best_controller.json").is_file():
+            raise ConfigError(
+                f"{where}: results = {cfg['results']!r} is not a results folder of `run` "
+                "(no best_controller.json)"
+            )
+    if len(configs) > 1:
+        _check_shared(configs)
+    ticks = sum(c["ticks"] for c in phases_cfg)
+    return f"{head['name']}: {len(phases_cfg)} phases, {ticks} ticks"
 
 
 def _check_shared(phases) -> None:
@@ -224,8 +260,10 @@ def _check_shared(phases) -> None:
     first_name, first, _ = phases[0]
     for name, experiment, _ in phases[1:]:
         for section, key in SHARED:
-            mine = experiment.config[section] if key is None else experiment.config[section][key]
-            theirs = first.config[section] if key is None else first.config[section][key]
+            mine = (
+                experiment.config[section] if key is None else experiment.config[section].get(key)
+            )
+            theirs = first.config[section] if key is None else first.config[section].get(key)
             if mine != theirs:
                 label = f"[{section}]" + ("" if key is None else f" {key}")
                 raise ConfigError(
@@ -373,4 +411,12 @@ def run_compose(
     return final
 
 
-__all__ = ["parse_compose_config", "read_compose_config", "run_compose"]
+__all__ = [
+    "ComposeConfig",
+    "check_compose_config",
+    "parse_compose_config",
+    "phase_measures",
+    "phase_trajectories",
+    "read_compose_config",
+    "run_compose",
+]

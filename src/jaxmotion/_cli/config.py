@@ -255,6 +255,9 @@ SIMULATION = {
     "duration": Key("number", _REQUIRED, _positive, "> 0 (s)"),
     "dt": Key("number", 1e-3, _positive, "> 0 (s)"),
     "save_dt": Key("number", 0.02, _positive, "> 0 (s)"),
+    "control_dt": Key(
+        "number", None, _positive, "> 0 (s; the control period, a whole number of dt; default dt)"
+    ),
 }
 
 SEARCH = {
@@ -428,6 +431,11 @@ def parse_config(raw: Mapping[str, Any], *, name: str = "experiment") -> Experim
     """
     if not isinstance(raw, Mapping):
         raise ConfigError(f"a config must be a table; got {raw!r}")
+    if "phase" in raw:
+        raise ConfigError(
+            "this is a composite-motion config ([[phase]] tables): run it with "
+            "`python -m jaxmotion compose CONFIG.toml`"
+        )
     if "stage" in raw:
         return _parse_stages(raw, name)
     return _parse_single(raw, name)
@@ -534,7 +542,10 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
     build(
         "simulation",
         lambda: time_grid(
-            simulation_cfg["duration"], simulation_cfg["dt"], simulation_cfg["save_dt"]
+            simulation_cfg["duration"],
+            simulation_cfg["dt"],
+            simulation_cfg["save_dt"],
+            simulation_cfg.get("control_dt"),
         ),
     )
     task = Task(
@@ -545,6 +556,7 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
         duration=simulation_cfg["duration"],
         dt=simulation_cfg["dt"],
         save_dt=simulation_cfg["save_dt"],
+        control_dt=simulation_cfg.get("control_dt"),
         robustness=None if robust_cfg is None else Robustness(**robust_cfg),
     )
     resolved.update(

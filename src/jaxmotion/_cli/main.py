@@ -101,24 +101,48 @@ def _parser() -> argparse.ArgumentParser:
     )
     compose.add_argument("config", help="a compose config, e.g. configs/starman_composite.toml")
     compose.add_argument("--out", metavar="DIR", help="results directory")
-    compose.add_argument("--seed", type=int, help="override the config's seed")
+    compose.add_argument(
+        "--seed", type=int, help="override the config's seed (and the seed of components run first)"
+    )
     compose.add_argument("--no-animation", action="store_true", help="do not write motion.gif")
     compose.add_argument("--quiet", action="store_true", help="no progress or summary")
     run_options(p)  # `python -m jaxmotion [options]` runs the default experiment
     return p
 
 
+def _compose_check(path: Path) -> str | None:
+    """`check` of a compose config (one with [[phase]] tables); None for any other."""
+    import tomllib
+
+    from .compose import check_compose_config
+    from .config import ConfigError
+
+    try:
+        with path.open("rb") as f:
+            raw = tomllib.load(f)
+    except (FileNotFoundError, tomllib.TOMLDecodeError):
+        return None  # `_load` reports it
+    if not isinstance(raw, dict) or "phase" not in raw:
+        return None
+    try:
+        return check_compose_config(raw, name=path.stem)
+    except ConfigError as e:
+        raise ConfigError(f"{path}: {e}") from None
+
+
 def _compose(args) -> int:
     from .compose import read_compose_config, run_compose
-    from .config import load_config
     from .results import run_experiment
 
     say = (lambda _: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
 
     def run_component(path: Path) -> Path:
-        say(f"running {path} first")
+        # With --seed, the components are searched with that seed too (a composite's
+        # independent runs are independent all the way down).
+        say(f"running {path} first" + ("" if args.seed is None else f" (seed {args.seed})"))
+        keep = argparse.Namespace(seed=args.seed, evaluations=None, batch=None, runs=None)
         folder = run_experiment(
-            load_config(path), directory=args.out, progress=not args.quiet, animation=False
+            _load(path, keep), directory=args.out, progress=not args.quiet, animation=False
         )
         say(f"  -> {folder}")
         return folder
@@ -429,6 +453,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "run":
             return _run(Path(args.config), args)
         if args.command == "check":
+            composite = _compose_check(Path(args.config))
+            if composite is not None:
+                print(f"{args.config}: ok ({composite})")
+                return 0
             experiment = _load(
                 Path(args.config), argparse.Namespace(seed=None, evaluations=None, batch=None)
             )
