@@ -190,3 +190,12 @@ def test_a_config_asks_for_robustness_and_round_trips():
     with pytest.raises(ConfigError, match=r"\[robustness\].*'spin'"):
         parse_config({**raw, "robustness": {"spin": 0.1}})
     assert parse_config({k: v for k, v in raw.items() if k != "robustness"}).task.robustness is None
+
+
+def test_a_robust_hill_climb_is_reproducible(robust_task):
+    """parallel_hill_climb draws each step's starts from its key: the same key gives the
+    same search."""
+    run = lambda: jm.parallel_hill_climb(robust_task, key=jr.key(6), evaluations=4, size=4, batch=2)
+    a, b = run(), run()
+    np.testing.assert_array_equal(a.history.fitness, b.history.fitness)
+    assert a.best_fitness >= float(np.max(a.history.fitness[:4]))
