@@ -1,14 +1,11 @@
 """`python -m jaxmotion compose`: a composite motion from controllers found earlier (the second
 paper's section 3): its config, the transition-point search and its results folder."""
 
-import datetime as _dt
 import itertools
 import json
 import os
 import shutil
-import tempfile
 import time
-import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +19,16 @@ import tomli_w
 from .._composite import Composite
 from .._objective.script import Script, ScriptError
 from .._sim.trajectory import Trajectory
-from .config import OUTPUT, TOP, ConfigError, Experiment, Key, _read_section, load_config
+from .config import (
+    OUTPUT,
+    TOP,
+    ConfigError,
+    Experiment,
+    Key,
+    _read_section,
+    load_config,
+    read_toml,
+)
 
 PHASE = {
     "name": Key(
@@ -94,13 +100,7 @@ def read_compose_config(
     **Raises:** `ConfigError` naming the first bad key, its value and what is allowed.
     """
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            raw = tomllib.load(f)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such config file") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    raw = read_toml(path)
     try:
         return parse_compose_config(raw, name=path.stem, run_component=run_component)
     except ConfigError as e:
@@ -346,19 +346,12 @@ def run_compose(
     best: fitness, the script's values, each phase's measures and its component's check;
     the search's wall time). Written whole or not at all."""
     from ..viz import animate, learning_plot
-    from .results import _json_number, controller_to_dict, write_history_csv
+    from .results import _json_number, controller_to_dict, new_folder, write_history_csv
 
     say = report or (lambda _: None)
     out_root = Path(directory if directory is not None else compose.output["directory"])
     want_animation = compose.output["animation"] if animation is None else animation
-    out_root.mkdir(parents=True, exist_ok=True)
-    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    final = out_root / f"{compose.name}-{stamp}"
-    n = 1
-    while final.exists():
-        n += 1
-        final = out_root / f"{compose.name}-{stamp}-{n}"
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=out_root))
+    final, tmp = new_folder(out_root, compose.name)
     try:
         composite, s = compose.composite, compose.search
         equal = composite.equally_spaced()

@@ -31,6 +31,17 @@ class ConfigError(ValueError):
 _REQUIRED = object()
 
 
+def read_toml(path: Path) -> dict[str, Any]:
+    """A config file's table. **Raises:** `ConfigError` for a missing file or bad TOML."""
+    try:
+        with Path(path).open("rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+
+
 @dataclass(frozen=True)
 class Key:
     """One config key: its type, default and a check returning what is allowed (or None)."""

@@ -225,17 +225,9 @@ def _override_search(search, args, where: str) -> None:
 
 
 def _load(path: Path, args):
-    import tomllib
+    from .config import ConfigError, parse_config, read_toml
 
-    from .config import ConfigError, parse_config
-
-    try:
-        with path.open("rb") as f:
-            raw = tomllib.load(f)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such config file") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    raw = read_toml(path)
     try:
         return parse_config(_overrides(raw, args), name=path.stem)
     except ConfigError as e:

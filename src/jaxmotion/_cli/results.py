@@ -181,6 +181,21 @@ def _run_search(experiment: Experiment, progress: bool) -> tuple[SearchResult, d
     return result, timing
 
 
+def new_folder(out_root: Path, name: str) -> tuple[Path, Path]:
+    """A results folder's final path `<out_root>/<name>-<timestamp>[-n]/` (not yet there)
+    and the hidden temporary folder beside it to assemble it in (rename it into place when
+    complete, remove it otherwise: nothing half-written is left behind)."""
+    out_root.mkdir(parents=True, exist_ok=True)
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    final = out_root / f"{name}-{stamp}"
+    n = 1
+    while final.exists():
+        n += 1
+        final = out_root / f"{name}-{stamp}-{n}"
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=out_root))
+    return final, tmp
+
+
 def run_experiment(
     experiment: Experiment,
     *,
@@ -210,14 +225,7 @@ def run_experiment(
     """
     out_root = Path(directory if directory is not None else experiment.output["directory"])
     want_animation = experiment.output["animation"] if animation is None else animation
-    out_root.mkdir(parents=True, exist_ok=True)
-    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    final = out_root / f"{experiment.name}-{stamp}"
-    n = 1
-    while final.exists():
-        n += 1
-        final = out_root / f"{experiment.name}-{stamp}-{n}"
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=out_root))
+    final, tmp = new_folder(out_root, experiment.name)
     try:
         if experiment.stages:
             _run_stages(experiment, tmp, progress, want_animation, report)
