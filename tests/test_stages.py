@@ -86,7 +86,8 @@ WALK, TURN = {"name": "walk"}, {"name": "turn"}
         (
             staged(WALK, {"name": "turn", "world": {"gravity": 1.0}}),
             r'^\[\[stage\]\] 2 \("turn"\) has an unknown key \'world\'; allowed: name, '
-            r"controller, objective, simulation, search, check",
+            r"controller, objective, simulation, search, robustness, check \(\[body\], \[world\] and "
+            r"\[output\] are shared: top level only\)",
         ),
         (
             {
