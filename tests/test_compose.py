@@ -113,6 +113,11 @@ def test_phase_cuts_rejoin_the_motion(components):
         ),
         (dict(search={"arrays": 1}), r"\[search\] arrays = 1"),
         (dict(oops={"x": 1}), r"unknown section \[oops\]"),
+        (
+            dict(script={"text": SCRIPT, "tick": 0.006}),
+            r"\[script\] tick = 0.006 is not a whole number of control periods",
+        ),
+        (dict(script={"text": SCRIPT, "tick": 0}), r"\[script\] tick = 0"),
     ],
 )
 def test_bad_compose_configs_name_what_is_wrong(components, change, match):
@@ -148,3 +153,15 @@ def test_a_control_period_longer_than_the_step_is_the_scripts_tick():
     bad = {**COMPONENT, "simulation": {"duration": 0.4, "dt": 0.004, "control_dt": 0.006}}
     with pytest.raises(ConfigError, match=r"\[simulation\] control_dt = 0.006"):
         parse_config(bad)
+
+
+def test_a_script_tick_counts_coarser_than_the_control_period(components):
+    """`[script] tick` sets the script's unit: the phases' ticks and the duration count it,
+    while the components keep their control period."""
+    raw = compose_raw(components, script={"text": SCRIPT, "tick": 0.02})
+    raw["phase"][0]["ticks"], raw["phase"][1]["ticks"] = 12, 8
+    compose = parse_compose_config(raw)
+    assert compose.composite.tick == pytest.approx(0.02)
+    assert compose.composite.control_dt == pytest.approx(0.004)
+    assert compose.composite.duration == pytest.approx(0.4)
+    np.testing.assert_allclose(compose.initial, [0.24])

@@ -73,6 +73,41 @@ def test_bad_composites_are_refused():
         jm.Composite(body, WORLD, {"a": c, "b": c}, "total = 1", 1.0, DT).evaluate(jnp.zeros(3))
 
 
+def test_a_tick_longer_than_the_control_period_is_the_scripts_unit(composite):
+    """With `tick` = 5 steps, the controllers still act every step (the same motion as the
+    fine composite's at a transition on both grids) while the script's `delta_time` counts
+    ticks and the search's transitions fall on ticks."""
+    coarse = jm.Composite(
+        composite.body,
+        composite.world,
+        dict(zip(composite.phases, composite.controllers, strict=True)),
+        "kick = delta_time ?= 12\ntotal = kick",
+        DURATION,
+        DT,
+        tick=5 * DT,
+    )
+    assert coarse.tick == pytest.approx(5 * DT) and coarse.control_dt == DT
+    t = jnp.array([0.24])  # 60 steps = 12 ticks
+    assert float(coarse.values(t)["total"]) == 1.0
+    fine, ticked = composite.trajectory(t), coarse.trajectory(t)
+    np.testing.assert_array_equal(fine.points[::5], ticked.points)
+    np.testing.assert_allclose(coarse.equally_spaced(), [0.2], rtol=1e-12)
+    result = coarse.search(key=jr.key(0), num_arrays=4, rounds=2, mutations=2)
+    ticks = np.asarray(result.best) / coarse.tick
+    np.testing.assert_allclose(ticks, np.round(ticks), atol=1e-6)
+
+
+def test_a_tick_must_be_whole_control_periods_dividing_the_duration(composite):
+    controllers = dict(zip(composite.phases, composite.controllers, strict=True))
+    args = (composite.body, composite.world, controllers, "total = 1")
+    with pytest.raises(ValueError, match=r"tick = 0.006 is not a whole number of control"):
+        jm.Composite(*args, DURATION, DT, tick=0.006)
+    with pytest.raises(ValueError, match=r"duration = 0.42 is not a whole number of ticks"):
+        jm.Composite(*args, 0.42, DT, tick=0.04)
+    with pytest.raises(ValueError, match=r"tick = -1; allowed: a number of seconds > 0"):
+        jm.Composite(*args, DURATION, DT, tick=-1)
+
+
 @pytest.fixture(scope="module")
 def editor(composite):
     return jm.viz.composite_editor(

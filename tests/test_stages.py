@@ -86,8 +86,8 @@ WALK, TURN = {"name": "walk"}, {"name": "turn"}
         (
             staged(WALK, {"name": "turn", "world": {"gravity": 1.0}}),
             r'^\[\[stage\]\] 2 \("turn"\) has an unknown key \'world\'; allowed: name, '
-            r"controller, objective, simulation, search, robustness, check \(\[body\], \[world\] and "
-            r"\[output\] are shared: top level only\)",
+            r"controller, objective, simulation, search, robustness, check "
+            r"\(\[body\], \[world\] and \[output\] are shared: top level only\)",
         ),
         (
             {

@@ -32,8 +32,12 @@ class Composite(eqx.Module):
         ..., "jump": ..., "shuffle": ...}`); the script's phases are these names.
     - `script`: the script's text (or a `Script` with these phases and tick).
     - `duration`: the whole motion's length, s.
-    - `dt`, `control_dt`: the simulation's step and control period (a tick), s; the
-        script's `delta_time` counts ticks.
+    - `dt`, `control_dt`: the simulation's step and the controllers' control period, s
+        (`control_dt` defaults to `dt`).
+    - `tick`: the script's unit of time, s (its `delta_time` counts ticks; transitions fall
+        on ticks): a whole number of control periods that divides the duration (default:
+        the control period). A tick longer than the control period lets controllers act
+        every step while a script counts coarser ticks, as the paper's Table 4 does.
     - `initial_state`: the body's state at the start (default: the rest pose).
 
     Samples are saved at every tick, so the script reads each phase exactly from its first
@@ -50,6 +54,7 @@ class Composite(eqx.Module):
     duration: float = eqx.field(static=True)
     dt: float = eqx.field(static=True)
     control_dt: float = eqx.field(static=True)
+    tick: float = eqx.field(static=True)
     initial_state: BodyState | None
 
     def __init__(
@@ -62,6 +67,7 @@ class Composite(eqx.Module):
         dt: float = 1e-3,
         *,
         control_dt: float | None = None,
+        tick: float | None = None,
         initial_state: BodyState | None = None,
     ):
         if not isinstance(controllers, Mapping) or not controllers:
@@ -70,16 +76,16 @@ class Composite(eqx.Module):
                 f"controllers; got {controllers!r}"
             )
         grid = time_grid(duration, dt, None, control_dt)
+        tick = _tick(tick, grid.control_dt, duration)
         names = tuple(controllers)
         if isinstance(script, Script):
-            if script.phases != names or script.tick != grid.control_dt:
+            if script.phases != names or script.tick != tick:
                 raise ValueError(
                     f"Composite.script has phases {script.phases} and tick {script.tick}; "
-                    f"allowed: the controllers' names {names} and the control period "
-                    f"{grid.control_dt}"
+                    f"allowed: the controllers' names {names} and the tick {tick}"
                 )
         else:
-            script = Script(script, names, grid.control_dt)
+            script = Script(script, names, tick)
         Sequence(tuple(controllers.values()), np.zeros(len(names) - 1))  # checks them
         self.body = body
         self.world = world
@@ -88,6 +94,7 @@ class Composite(eqx.Module):
         self.duration = float(duration)
         self.dt = float(dt)
         self.control_dt = grid.control_dt
+        self.tick = tick
         self.initial_state = initial_state
 
     @property
@@ -98,8 +105,8 @@ class Composite(eqx.Module):
         """The paper's default transitions: the phases share the duration equally (on the
         tick grid)."""
         k = len(self.controllers)
-        ticks = np.round(np.arange(1, k) * self.duration / k / self.control_dt)
-        return ticks * self.control_dt
+        ticks = np.round(np.arange(1, k) * self.duration / k / self.tick)
+        return ticks * self.tick
 
     def sequence(self, transitions: Float[ArrayLike, " K-1"]) -> Sequence:
         """The controllers as one `Sequence` switching at `transitions` (s)."""
@@ -132,7 +139,7 @@ class Composite(eqx.Module):
             self.world,
             self.duration,
             dt=self.dt,
-            save_dt=self.control_dt,
+            save_dt=self.tick,
             control_dt=self.control_dt,
             solver=solver,
             initial_state=self.initial_state,
@@ -165,9 +172,26 @@ class Composite(eqx.Module):
             num_arrays=num_arrays,
             rounds=rounds,
             mutations=mutations,
-            tick=self.control_dt,
+            tick=self.tick,
             callback=callback,
         )
+
+
+def _tick(tick, control_dt: float, duration: float) -> float:
+    """The script's tick: a whole number of control periods dividing the duration."""
+    if tick is None:
+        return control_dt
+    if isinstance(tick, bool) or not isinstance(tick, (int, float)) or not tick > 0:
+        raise ValueError(f"tick = {tick!r}; allowed: a number of seconds > 0")
+    for name, value, unit in (("tick", tick, control_dt), ("duration", duration, tick)):
+        n = round(value / unit)
+        if n < 1 or abs(value - n * unit) > 1e-6 * unit:
+            raise ValueError(
+                f"{name} = {value!r} is not a whole number of "
+                f"{'control periods' if name == 'tick' else 'ticks'} ({unit!r} s); allowed: "
+                f"e.g. {max(n, 1) * unit:.6g}"
+            )
+    return round(tick / control_dt) * control_dt
 
 
 def _sequences(controllers, transitions) -> Sequence:
@@ -183,7 +207,7 @@ def _simulated(composite: Composite, sequences) -> Trajectory:
         composite.world,
         composite.duration,
         dt=composite.dt,
-        save_dt=composite.control_dt,
+        save_dt=composite.tick,
         control_dt=composite.control_dt,
         initial_state=composite.initial_state,
     )

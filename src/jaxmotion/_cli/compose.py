@@ -42,7 +42,16 @@ PHASE = {
     "ticks": Key("integer", None, lambda v: v >= 0, ">= 0 (the phase's first guess, in ticks)"),
 }
 
-SCRIPT = {"text": Key("string", None, lambda v: bool(v.strip()), "(the composite's script)")}
+SCRIPT = {
+    "text": Key("string", None, lambda v: bool(v.strip()), "(the composite's script)"),
+    "tick": Key(
+        "number",
+        None,
+        lambda v: v > 0,
+        "> 0 (s: the script's unit of time, a whole number of the components' control "
+        "period; default: that period)",
+    ),
+}
 
 COMPOSE_SEARCH = {
     "arrays": Key("integer", 16, lambda v: v >= 2, ">= 2 (the paper's Q = 16)"),
@@ -139,7 +148,7 @@ def parse_compose_config(
     _check_shared(phases)
     first = phases[0][1]
     dt = first.task.dt
-    tick = first.task.control_dt or dt
+    tick = script_cfg.get("tick", first.task.control_dt or dt)
     duration = simulation_cfg.get("duration", sum(ticks) * tick)
     try:
         composite = Composite(
@@ -150,10 +159,12 @@ def parse_compose_config(
             duration,
             dt,
             control_dt=first.task.control_dt,
+            tick=script_cfg.get("tick"),
         )
     except ValueError as e:
-        raise ConfigError(f"[simulation] {e}") from None
-    initial = np.cumsum(ticks)[:-1] * composite.control_dt
+        section = "[script]" if str(e).startswith("tick") else "[simulation]"
+        raise ConfigError(f"{section} {e}") from None
+    initial = np.cumsum(ticks)[:-1] * composite.tick
     if np.any(initial > duration * (1 + 1e-9)):
         raise ConfigError(
             f"the phases' ticks {ticks} end at {initial[-1]:.6g} s, after [simulation] "
@@ -276,7 +287,7 @@ def _check_shared(phases) -> None:
 def phase_measures(composite: Composite, trajectory: Trajectory, transitions) -> dict:
     """Per phase, the measures of `MEASURES` (the script language's own)."""
     lines = [f"{p}_{m} = {p}.{m}" for p in composite.phases for m in MEASURES]
-    probe = Script("\n".join([*lines, "total = 0"]), composite.phases, composite.control_dt)
+    probe = Script("\n".join([*lines, "total = 0"]), composite.phases, composite.tick)
     values = probe.values(trajectory, jnp.asarray(transitions, dtype=float))
     return {p: {m: float(values[f"{p}_{m}"]) for m in MEASURES} for p in composite.phases}
 
@@ -323,7 +334,7 @@ def _report(compose: ComposeConfig, transitions) -> dict[str, Any]:
     fitness = float(composite.evaluate(jnp.asarray(transitions, dtype=float)[None])[0])
     return {
         "transitions": [float(t) for t in np.asarray(transitions)],
-        "ticks": [round(float(t) / composite.control_dt) for t in np.asarray(transitions)],
+        "ticks": [round(float(t) / composite.tick) for t in np.asarray(transitions)],
         "fitness": _json_number(fitness),
         "values": {k: _json_number(float(v)) for k, v in values.items()},
         "phases": measures,

@@ -70,7 +70,7 @@ class CompositeEditor:
         self.azim = (-90.0 if planar else -60.0) if azim is None else azim
         start = composite.equally_spaced() if transitions is None else np.asarray(transitions)
         names = composite.phases
-        tick = composite.control_dt
+        tick = composite.tick
         self.sliders = [
             w.FloatSlider(
                 value=float(t),
