@@ -22,6 +22,7 @@ COMPONENT = {
     "search": {"algorithm": "serial_search", "climbers": 2, "generations": 2},
     "output": {"animation": False},
 }
+STAGE_ATOL = 1e-5  # m: a phase replays its stage (float32 rounding of the saved samples)
 SCRIPT = """
 # the kick should last 40 ticks, then the roll travels
 kick = delta_time ?= 40
@@ -165,3 +166,47 @@ def test_a_script_tick_counts_coarser_than_the_control_period(components):
     assert compose.composite.control_dt == pytest.approx(0.004)
     assert compose.composite.duration == pytest.approx(0.4)
     np.testing.assert_allclose(compose.initial, [0.24])
+
+
+@pytest.fixture(scope="module")
+def staged(tmp_path_factory):
+    """The results folder of a tiny two-stage run (the second starts where the first ended;
+    one compilation: the stages share their shapes)."""
+    raw = {**COMPONENT, "stage": [{"name": "kick"}, {"name": "roll"}]}
+    experiment = parse_config(raw, name="staged")
+    return run_experiment(experiment, directory=tmp_path_factory.mktemp("staged"), progress=False)
+
+
+def test_phases_can_be_the_stages_of_a_multi_stage_run(staged):
+    """`stage = "NAME"` takes a phase from a multi-stage run; at the stages' own boundary
+    the composite replays the run: each phase's motion is its stage's."""
+    from jaxmotion.experiment import load_stages, replay_stages
+
+    raw = compose_raw([staged, staged])
+    for phase, stage in zip(raw["phase"], ("kick", "roll"), strict=True):
+        phase.update(stage=stage, ticks=100)  # each stage's own 0.4 s
+    compose = parse_compose_config(raw)
+    experiment, controllers = load_stages(staged)
+    assert [e.name for _, e, _ in compose.phases] == ["kick", "roll"]
+    for (_, _, mine), theirs in zip(compose.phases, controllers, strict=True):
+        assert mine == theirs
+    stages = replay_stages(experiment, controllers)
+    boundary = float(stages[0].ts[-1])
+    motion = compose.composite.trajectory(np.array([boundary]))
+    parts = phase_trajectories(motion, [boundary])
+    for part, stage in zip(parts, stages, strict=True):
+        same = np.round(np.asarray(stage.ts) / compose.composite.tick).astype(int)
+        np.testing.assert_allclose(part.com[same], stage.com, atol=STAGE_ATOL)
+
+
+def test_a_phase_names_a_stage_exactly_when_its_run_has_stages(staged, components):
+    raw = compose_raw([staged, components[1]])
+    with pytest.raises(ConfigError, match=r"is a multi-stage run; allowed: name its stage"):
+        parse_compose_config(raw)
+    raw["phase"][0]["stage"] = "nope"
+    with pytest.raises(ConfigError, match=r"stage = 'nope' is not a stage of .*'kick', 'roll'"):
+        parse_compose_config(raw)
+    raw = compose_raw(components)
+    raw["phase"][0]["stage"] = "kick"
+    with pytest.raises(ConfigError, match=r"stage = 'kick' is not a stage of .* no stage key"):
+        parse_compose_config(raw)

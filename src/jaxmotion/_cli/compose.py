@@ -39,6 +39,12 @@ PHASE = {
     ),
     "results": Key("string", None, lambda v: bool(v.strip()), "(a results folder of `run`)"),
     "config": Key("string", None, lambda v: bool(v.strip()), "(a config to run first)"),
+    "stage": Key(
+        "string",
+        None,
+        lambda v: bool(v.strip()),
+        "(a stage's name, when results or config is a multi-stage run)",
+    ),
     "ticks": Key("integer", None, lambda v: v >= 0, ">= 0 (the phase's first guess, in ticks)"),
 }
 
@@ -123,27 +129,25 @@ def parse_compose_config(
     run_component: Callable[[Path], Path] | None = None,
 ) -> ComposeConfig:
     """`read_compose_config` on a config already read from TOML."""
-    from .results import load_result
-
     head, phases_cfg, script_cfg, search_cfg, simulation_cfg, output_cfg = _tables(raw, name)
     ticks = [c["ticks"] for c in phases_cfg]
+    for i, cfg in enumerate(phases_cfg, start=1):  # every config checked before any runs
+        if "config" in cfg:
+            _component_config(f'[[phase]] {i} ("{cfg["name"]}")', cfg)
+    ran: dict[Path, Path] = {}  # a multi-stage config named by several phases runs once
     phases = []
     for i, cfg in enumerate(phases_cfg, start=1):
         where = f'[[phase]] {i} ("{cfg["name"]}")'
         if "config" in cfg:
             source = Path(cfg["config"])
-            load_config(source)  # checked before anything runs
             if run_component is None:
                 raise ConfigError(f"{where}: config = {cfg['config']!r} would need a run")
-            folder = run_component(source)
+            if source.resolve() not in ran:
+                ran[source.resolve()] = run_component(source)
+            folder = ran[source.resolve()]
         else:
             folder = Path(cfg["results"])
-        try:
-            experiment, controller = load_result(folder)
-        except FileNotFoundError as e:
-            raise ConfigError(f"{where}: results = {str(folder)!r}: {e}") from None
-        except ValueError as e:
-            raise ConfigError(f"{where}: results = {str(folder)!r}: {e}") from None
+        experiment, controller = _component(where, folder, cfg.get("stage"))
         phases.append((cfg["name"], experiment, controller))
     _check_shared(phases)
     first = phases[0][1]
@@ -238,6 +242,52 @@ def _tables(raw: Mapping[str, Any], name: str):
     return head, phases_cfg, script_cfg, search_cfg, simulation_cfg, output_cfg
 
 
+def _component_config(where: str, cfg: Mapping[str, Any]):
+    """The checked config a phase names, and its stage if it names one."""
+    try:
+        experiment = load_config(cfg["config"])
+    except ConfigError as e:
+        raise ConfigError(f"{where}: {e}") from None
+    return _stage_of(where, experiment, cfg.get("stage"), f"config = {cfg['config']!r}")
+
+
+def _stage_of(where: str, experiment, stage: str | None, source: str):
+    """A phase's experiment: the run's own, or the named stage of a multi-stage run."""
+    names = [s.name for s in experiment.stages]
+    if stage is None:
+        if names:
+            raise ConfigError(
+                f"{where}: {source} is a multi-stage run; allowed: name its stage with "
+                f"stage = one of {', '.join(map(repr, names))}"
+            )
+        return experiment
+    if stage not in names:
+        allowed = f"one of {', '.join(map(repr, names))}" if names else "no stage key"
+        raise ConfigError(
+            f"{where}: stage = {stage!r} is not a stage of {source}; allowed: {allowed}"
+        )
+    return experiment.stages[names.index(stage)]
+
+
+def _component(where: str, folder: Path, stage: str | None):
+    """A phase's experiment and controller from a results folder of `run` (a single
+    search, or the named stage of a multi-stage run)."""
+    from .results import _read_config, controller_from_dict, load_stages
+
+    source = f"results = {str(folder)!r}"
+    try:
+        experiment = _stage_of(where, _read_config(folder), stage, source)
+        if stage is None:
+            data = json.loads((folder / "best_controller.json").read_text())
+            return experiment, controller_from_dict(data)
+        whole, controllers = load_stages(folder)
+        return experiment, controllers[[s.name for s in whole.stages].index(stage)]
+    except (FileNotFoundError, ValueError) as e:
+        if isinstance(e, ConfigError) and str(e).startswith(where):
+            raise
+        raise ConfigError(f"{where}: {source}: {e}") from None
+
+
 def check_compose_config(raw: Mapping[str, Any], *, name: str = "composite") -> str:
     """Check a compose config without running or loading anything that needs a run: its
     tables, its script, the component configs it names (each a valid run config, all for
@@ -251,14 +301,11 @@ def check_compose_config(raw: Mapping[str, Any], *, name: str = "composite") -> 
     for i, cfg in enumerate(phases_cfg, start=1):
         where = f'[[phase]] {i} ("{cfg["name"]}")'
         if "config" in cfg:
-            try:
-                configs.append((cfg["name"], load_config(cfg["config"]), None))
-            except ConfigError as e:
-                raise ConfigError(f"{where}: {e}") from None
-        elif not (Path(cfg["results"]) / "best_controller.json").is_file():
+            configs.append((cfg["name"], _component_config(where, cfg), None))
+        elif not (Path(cfg["results"]) / "config.toml").is_file():
             raise ConfigError(
                 f"{where}: results = {cfg['results']!r} is not a results folder of `run` "
-                "(no best_controller.json)"
+                "(no config.toml)"
             )
     if len(configs) > 1:
         _check_shared(configs)
