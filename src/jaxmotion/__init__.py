@@ -30,6 +30,11 @@ from ._control.sense_bsr import SenseBSR as SenseBSR
 from ._control.sense_bsr import SenseBSRSpace as SenseBSRSpace
 from ._control.sequence import Sequence as Sequence
 from ._control.sequence import SequenceState as SequenceState
+from ._control.spring_net import MUTATION_KINDS as MUTATION_KINDS
+from ._control.spring_net import MUTATION_PROBABILITIES as MUTATION_PROBABILITIES
+from ._control.spring_net import SpringNet as SpringNet
+from ._control.spring_net import SpringNetSpace as SpringNetSpace
+from ._control.spring_net import spring_pairs as spring_pairs
 from ._control.time_bsr import TimeBSR as TimeBSR
 from ._control.time_bsr import TimeBSRSpace as TimeBSRSpace
 from ._devices import use_cpu_cores as use_cpu_cores
@@ -41,6 +46,9 @@ from ._objective.script import Script as Script
 from ._objective.script import ScriptError as ScriptError
 from ._objective.script import closeness as closeness
 from ._objective.script import script_measures as script_measures
+from ._search.evolve import Evolve as Evolve
+from ._search.evolve import EvolveState as EvolveState
+from ._search.evolve import evolve as evolve
 from ._search.hill_climb import HillClimbState as HillClimbState
 from ._search.hill_climb import ParallelHillClimb as ParallelHillClimb
 from ._search.hill_climb import SearchResult as SearchResult
@@ -82,6 +90,8 @@ def __getattr__(name):
 
 
 __all__ = [
+    "MUTATION_KINDS",
+    "MUTATION_PROBABILITIES",
     "PERTURBATIONS",
     "REFLEX_NAMES",
     "AbstractBody",
@@ -92,6 +102,8 @@ __all__ = [
     "BodyState",
     "Composite",
     "ControllerState",
+    "Evolve",
+    "EvolveState",
     "Figure",
     "FigurePositions",
     "FigureVelocities",
@@ -118,6 +130,8 @@ __all__ = [
     "SerialSearchState",
     "SimulationState",
     "Smoothing",
+    "SpringNet",
+    "SpringNetSpace",
     "Task",
     "TimeBSR",
     "TimeBSRSpace",
@@ -129,6 +143,7 @@ __all__ = [
     "checks",
     "closeness",
     "deform",
+    "evolve",
     "figures",
     "fitness_and_gradient",
     "floor_force",
@@ -141,6 +156,7 @@ __all__ = [
     "script_measures",
     "serial_search",
     "simulate",
+    "spring_pairs",
     "transition_search",
     "use_cpu_cores",
     "viz",

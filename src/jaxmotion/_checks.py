@@ -1,12 +1,13 @@
 """Reproduction checks: does a motion really leap, somersault, pirouette, shuffle,
-cartwheel, bound, jump or walk, and does a sequence walk, turn and walk again?
+cartwheel, bound, jump, walk, hop or roll, and does a sequence walk, turn and walk again?
 
 Each check is a function of one (unbatched) `Trajectory` with documented thresholds (a
 sequence check, `walk_turn_walk`, of the stages' trajectories in order), and returns a
 `CheckResult` that says which criteria held and what was measured. They encode the first
 paper's Figures 7-9 (the spider's leap, the poodle's somersault, the table's pirouette) and
 the second paper's Figures 9, 10 and 13-17 (Star-Man's shuffle, cartwheel and jump, Cujo's
-bounding, Rex's and Bob's walks) as numbers a user can test their own results against.
+bounding, Rex's and Bob's walks) and the third paper's Figures 3-6 (the snake's and the
+Luxo lamp's hopping and rolling) as numbers a user can test their own results against.
 Flight has one definition for all of them (`flights`).
 """
 
@@ -306,14 +307,35 @@ def cartwheel(
     """
     t = _single(trajectory, "cartwheel")
     travel, far = _travel(t, body_length, min_lengths)
+    turned, turns = _turned(trajectory, min_turns)
+    return _result("cartwheel", t["finite"], {**turned, **travel}, {**turns, **far})
+
+
+def _airborne(
+    trajectory: Trajectory,
+    body_length: float,
+    clearance: float,
+    min_flight_seconds: float,
+    min_phases: int,
+) -> tuple[dict, dict]:
+    """The figures and the criterion of "flies in at least `min_phases` separate phases"
+    (`flights`), shared by `bound` and `hop`."""
+    phases = flights(
+        trajectory, body_length=body_length, clearance=clearance, min_seconds=min_flight_seconds
+    )
+    label = (
+        f"flies (every point >= {clearance:g} body lengths up for >= {min_flight_seconds:g} s) "
+        f"in >= {min_phases} phases (got {len(phases)})"
+    )
+    return {"airborne_phases": float(len(phases))}, {label: len(phases) >= min_phases}
+
+
+def _turned(trajectory: Trajectory, min_turns: float) -> tuple[dict, dict]:
+    """The figures and the criterion of "turns at least `min_turns` full turns about the
+    lateral axis" (`rotations`), shared by `cartwheel` and `roll`."""
     turns = float(rotations(trajectory))
-    figures = {"turns": turns, **travel}
-    criteria = {
-        f"turns >= {min_turns:g} times about the lateral axis (got {turns:.2f})": turns
-        >= min_turns,
-        **far,
-    }
-    return _result("cartwheel", t["finite"], figures, criteria)
+    label = f"turns >= {min_turns:g} times about the lateral axis (got {turns:.2f})"
+    return {"turns": turns}, {label: turns >= min_turns}
 
 
 def bound(
@@ -333,21 +355,16 @@ def bound(
     """
     t = _single(trajectory, "bound")
     travel, far = _travel(t, body_length, min_lengths)
-    phases = flights(
-        trajectory, body_length=body_length, clearance=clearance, min_seconds=min_flight_seconds
+    flown, flies = _airborne(
+        trajectory, body_length, clearance, min_flight_seconds, min_airborne_phases
     )
     lowest = np.min(np.asarray(trajectory.points, float)[1:, :, 2], axis=1)
     figures = {
         **travel,
-        "airborne_phases": float(len(phases)),
+        **flown,
         "max_clearance_body_lengths": float(lowest.max()) / float(body_length),
     }
-    criteria = {
-        **far,
-        f"flies (every point >= {clearance:g} body lengths up for >= {min_flight_seconds:g} s) "
-        f"in >= {min_airborne_phases} phases (got {len(phases)})": len(phases)
-        >= min_airborne_phases,
-    }
+    criteria = {**far, **flies}
     return _result("bound", t["finite"], figures, criteria)
 
 
@@ -572,6 +589,84 @@ def walk_turn_walk(
     return _result("walk_turn_walk", all(t["finite"] for t in data), figures, criteria)
 
 
+def _distance(t: dict, body_length: float, min_lengths: float) -> tuple[dict, dict]:
+    """The figures and the criterion of "the centre of mass ends at least `min_lengths` body
+    lengths (horizontally, any direction) from where it started": the third paper's
+    fitness, the absolute horizontal distance travelled."""
+    body_length = _positive("body_length", body_length)
+    metres = float(np.linalg.norm(t["com"][-1, :2] - t["com"][0, :2]))
+    lengths = metres / body_length
+    figures = {"distance_body_lengths": lengths, "distance_m": metres}
+    label = f"travels >= {min_lengths:g} body lengths, any direction (got {lengths:.2f})"
+    return figures, {label: lengths >= min_lengths}
+
+
+def hop(
+    trajectory: Trajectory,
+    *,
+    body_length: float,
+    min_lengths: float = 2.0,
+    min_airborne_phases: int = 3,
+    clearance: float = FLIGHT_CLEARANCE,
+    min_flight_seconds: float = FLIGHT_SECONDS,
+) -> CheckResult:
+    """A hopping gait (third paper, Figures 3 and 5: the Luxo lamp and the snake jumping),
+    periodic: travels by repeated flights.
+
+    Passes when the centre of mass ends at least `min_lengths` body lengths from where it
+    started, horizontally and in any direction (the paper's fitness is the absolute
+    distance), and the body flies (`flights`: every point `clearance` body lengths off the
+    floor for `min_flight_seconds`) in at least `min_airborne_phases` separate phases.
+    """
+    t = _single(trajectory, "hop")
+    travel, far = _distance(t, body_length, min_lengths)
+    flown, flies = _airborne(
+        trajectory, body_length, clearance, min_flight_seconds, min_airborne_phases
+    )
+    return _result("hop", t["finite"], {**travel, **flown}, {**far, **flies})
+
+
+def roll(
+    trajectory: Trajectory,
+    *,
+    body_length: float,
+    min_turns: float = 1.0,
+    min_lengths: float = 2.0,
+) -> CheckResult:
+    """A rolling gait (third paper, Figures 4 and 6: the Luxo lamp and the snake rolling),
+    not periodic: travels while turning over.
+
+    Passes when the body frame turns at least `min_turns` full turns (net, either way)
+    about its lateral axis (`rotations`) and the centre of mass ends at least `min_lengths`
+    body lengths from where it started, horizontally and in any direction.
+    """
+    t = _single(trajectory, "roll")
+    travel, far = _distance(t, body_length, min_lengths)
+    turned, turns = _turned(trajectory, min_turns)
+    return _result("roll", t["finite"], {**turned, **travel}, {**turns, **far})
+
+
+def hop_or_roll(trajectory: Trajectory, *, body_length: float) -> CheckResult:
+    """Which of the third paper's gaits a motion found: passes when `hop` or `roll` passes
+    (each with its defaults). Its figures are both checks' figures and `hop` and `roll`
+    (1.0 where that check passed, else 0.0); its criteria are both checks' verdicts, each
+    followed by its failed criteria."""
+    results = {
+        "hop": hop(trajectory, body_length=body_length),
+        "roll": roll(trajectory, body_length=body_length),
+    }
+    figures: dict[str, float] = {}
+    criteria: dict[str, bool] = {}
+    for name, result in results.items():
+        figures.update(result.figures)
+        figures[name] = float(result.passed)
+        failed = "; ".join(text for text, ok in result.criteria.items() if not ok)
+        label = f"{name}: passed" if result.passed else f"{name}: failed ({failed})"
+        criteria[label] = result.passed
+    passed = any(r.passed for r in results.values())
+    return CheckResult("hop_or_roll", passed, figures, criteria)
+
+
 CHECKS = {
     "leap": leap,
     "somersault": somersault,
@@ -582,4 +677,7 @@ CHECKS = {
     "jump": jump,
     "walk": walk,
     "walk_turn_walk": walk_turn_walk,
+    "hop": hop,
+    "roll": roll,
+    "hop_or_roll": hop_or_roll,
 }

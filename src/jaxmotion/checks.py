@@ -1,5 +1,6 @@
 """Motion checks: `leap`, `somersault`, `pirouette` (first paper) and `shuffle`,
-`cartwheel`, `bound`, `jump`, `walk` (second paper), each a function of a Trajectory that returns a
+`cartwheel`, `bound`, `jump`, `walk` (second paper), `hop`, `roll` and `hop_or_roll` (third
+paper), each a function of a Trajectory that returns a
 `CheckResult` (see each function for its thresholds), and `walk_turn_walk` (second paper, Rex), a
 function of a sequence of three trajectories."""
 
@@ -10,9 +11,12 @@ from ._checks import CheckResult as CheckResult
 from ._checks import bound as bound
 from ._checks import cartwheel as cartwheel
 from ._checks import flights as flights
+from ._checks import hop as hop
+from ._checks import hop_or_roll as hop_or_roll
 from ._checks import jump as jump
 from ._checks import leap as leap
 from ._checks import pirouette as pirouette
+from ._checks import roll as roll
 from ._checks import shuffle as shuffle
 from ._checks import somersault as somersault
 from ._checks import steps as steps
@@ -27,9 +31,12 @@ __all__ = [
     "bound",
     "cartwheel",
     "flights",
+    "hop",
+    "hop_or_roll",
     "jump",
     "leap",
     "pirouette",
+    "roll",
     "shuffle",
     "somersault",
     "steps",

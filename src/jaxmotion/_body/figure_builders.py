@@ -236,3 +236,55 @@ def bob() -> Figure:
     return Figure(
         np.array(nodes), rods, masses=masses, joints=joints, radii=0.05, name="bob", feet=feet
     )
+
+
+def snake() -> Figure:
+    """The snake of the third paper (its Figure 1; 2D): three rods of 0.3 m (1 kg each, 3 cm
+    thick) in a line along x, lying on the floor. The middle rod is the root; the head (front,
+    +x) and the tail (back) each turn against it about y, -90..90 degrees (a positive angle
+    turns the head's tip down and the tail's tip up). 3 rods, 4 nodes, 2 joint angles.
+    Body length 0.9 m.
+    """
+    nodes = [np.array([x, 0.0, 0.0]) for x in (-0.15, 0.15, 0.45, -0.45)]
+    rods = [(0, 1), (1, 2), (0, 3)]
+    joints = [Joint(1, _Y, *_deg(-90, 90)), Joint(2, _Y, *_deg(-90, 90))]
+    return Figure(
+        np.array(nodes),
+        rods,
+        masses=[1.0, 1.0, 1.0],
+        joints=joints,
+        radii=0.03,
+        planar=True,
+        name="snake",
+    )
+
+
+def luxo() -> Figure:
+    """The Luxo lamp of the third paper (its Figure 2; 2D): a base (the root, 0.25 m along
+    x on the floor, 1 kg), a lower arm (0.3 m, 0.3 kg) rising forward at 60 degrees from the
+    base's back end, an upper arm (0.3 m, 0.3 kg) rising backward at 120 degrees from the
+    lower arm's top, and a head (the lampshade, 0.2 m, 0.5 kg) pointing forward and down at
+    -30 degrees from the upper arm's top. 4 rods, 5 nodes, 3 joint angles about y: the
+    lower arm against the base -60..60 degrees (positive tips it forward), the upper arm
+    against the lower -75..75, the head against the upper arm -60..60. Rods 3 cm thick.
+    Body length 0.25 m (the base; the arms and head stay within it at rest).
+    """
+    back = np.array([-0.1, 0.0, 0.0])
+    elbow = back + _polar(60.0, 0.3)
+    top = elbow + _polar(120.0, 0.3)
+    nodes = [back, back + _polar(0.0, 0.25), elbow, top, top + _polar(-30.0, 0.2)]
+    rods = [(0, 1), (0, 2), (2, 3), (3, 4)]
+    joints = [
+        Joint(1, _Y, *_deg(-60, 60)),
+        Joint(2, _Y, *_deg(-75, 75)),
+        Joint(3, _Y, *_deg(-60, 60)),
+    ]
+    return Figure(
+        np.array(nodes),
+        rods,
+        masses=[1.0, 0.3, 0.3, 0.5],
+        joints=joints,
+        radii=0.03,
+        planar=True,
+        name="luxo",
+    )

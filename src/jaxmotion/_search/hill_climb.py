@@ -232,9 +232,14 @@ def parallel_hill_climb(
     finally:
         if bar is not None:
             bar.close()
-    best = jax.tree_util.tree_map(lambda a: a[0], state.population)
+    return ranked_result(state, parts)
+
+
+def ranked_result(state, parts: list[History]) -> SearchResult:
+    """The `SearchResult` of a search whose state keeps its population ranked, best first
+    (`population`, `fitness`), and the `History` of each of its steps."""
     return SearchResult(
-        best=best,
+        best=jax.tree_util.tree_map(lambda a: a[0], state.population),
         best_fitness=float(state.fitness[0]),
         history=History.concatenate(parts),
         state=state,
