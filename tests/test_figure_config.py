@@ -118,7 +118,7 @@ def test_beryl_tumble_is_not_periodic():
             figure_config(search={"batch": 10}),
             r"\[search\] has an unknown key 'batch'; allowed: algorithm, climbers",
         ),
-        (figure_config(check={"motion": "hop"}), r"\[check\] motion = 'hop'; allowed"),
+        (figure_config(check={"motion": "hopscotch"}), r"\[check\] motion = 'hopscotch'; allowed"),
         (
             figure_config(controller={"mirror": "yes"}),
             r"\[controller\] mirror = 'yes'; allowed: true or false",

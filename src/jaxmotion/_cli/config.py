@@ -15,6 +15,7 @@ from typing import Any
 from .. import figures, lattices
 from .._control.regimes import RegimesSpace
 from .._control.sense_bsr import SenseBSRSpace
+from .._control.spring_net import SpringNetSpace
 from .._control.time_bsr import TimeBSRSpace
 from .._objective.registry import Objective
 from .._sim.robust import Robustness
@@ -154,6 +155,8 @@ FIGURE_BUILDERS: dict[str, Callable] = {
     "cujo": figures.cujo,
     "rex": figures.rex,
     "bob": figures.bob,
+    "snake": figures.snake,
+    "luxo": figures.luxo,
 }
 
 
@@ -238,10 +241,24 @@ SENSE_BSR = {
     "mirror": Key("bool", False),
 }
 
+SPRING_NET = {
+    "family": Key(
+        "string", "spring_net", lambda v: v == "spring_net", '"spring_net" (for a figure)'
+    ),
+    "num_masses": Key("integer", 4, lambda v: v >= 2, ">= 2 and >= the figure's free joint angles"),
+    "tau": Key("number", 0.1, _positive, "> 0 (s; the joints' time constant)"),
+    "mass_min": Key("number", 0.5, _positive, "> 0 (kg)"),
+    "mass_max": Key("number", 2.0, _positive, "> 0 (kg)"),
+    "stiffness_min": Key("number", 1.0, _positive, "> 0 (N/m)"),
+    "stiffness_max": Key("number", 50.0, _positive, "> 0 (N/m)"),
+    "scale": Key("number", 0.3, _positive, "> 0 (the mutations' step)"),
+    "damping": Key("number", 0.0, _nonnegative, ">= 0 (1/s)"),
+}
+
 # The controller families of each kind of body, the default first.
 FAMILIES = {
     "lattice": {"regimes": CONTROLLER},
-    "figure": {"time_bsr": TIME_BSR, "sense_bsr": SENSE_BSR},
+    "figure": {"time_bsr": TIME_BSR, "sense_bsr": SENSE_BSR, "spring_net": SPRING_NET},
 }
 
 
@@ -276,7 +293,7 @@ SEARCH = {
         "string",
         "parallel_hill_climb",
         lambda v: v in SEARCHES,
-        '"parallel_hill_climb" or "serial_search"',
+        '"parallel_hill_climb", "serial_search" or "evolve"',
     ),
     "evaluations": Key("integer", 25_000, lambda v: v >= 1, ">= 1"),
     "size": Key("integer", 100, lambda v: v >= 1, ">= 1"),
@@ -299,7 +316,21 @@ SERIAL_SEARCH = {
     ),
 }
 
-SEARCHES = {"parallel_hill_climb": SEARCH, "serial_search": SERIAL_SEARCH}
+EVOLVE = {
+    "algorithm": SEARCH["algorithm"],
+    "generations": Key(
+        "integer", 20, lambda v: v >= 1, ">= 1 (the first, random, one included; the paper: 20)"
+    ),
+    "size": Key(
+        "integer",
+        2000,
+        lambda v: v >= 5 and v % 5 == 0,
+        ">= 5, a multiple of 5 (the population; the paper: 2,000)",
+    ),
+    "mutations": Key("integer", 3, lambda v: v >= 1, ">= 1 (each offspring gets 1..mutations)"),
+}
+
+SEARCHES = {"parallel_hill_climb": SEARCH, "serial_search": SERIAL_SEARCH, "evolve": EVOLVE}
 
 ROBUSTNESS = {
     "samples": Key("integer", 4, lambda v: v >= 1, ">= 1 (random starts per evaluation)"),
@@ -323,6 +354,9 @@ def search_evaluations(search: Mapping[str, Any]) -> int:
     """How many simulations a checked [search] section asks for (initial sets included)."""
     if search["algorithm"] == "serial_search":
         return search["runs"] * search["climbers"] * (search["generations"] + 1)
+    if search["algorithm"] == "evolve":
+        # Survivors keep their fitness: each later generation evaluates 4/5 of the size.
+        return search["size"] + (search["generations"] - 1) * (search["size"] * 4 // 5)
     return search["size"] + search["evaluations"]
 
 
@@ -333,6 +367,12 @@ def search_plan(search: Mapping[str, Any]) -> str:
         return (
             f"serial search, {search['climbers']} climbers x {search['generations']} "
             f"generations x {search['runs']} runs, reseeding every {search['reseed_every']}"
+        )
+    if search["algorithm"] == "evolve":
+        return (
+            f"evolution, {search['generations']} generations of {search['size']} "
+            f"({search_evaluations(search)} evaluations), up to {search['mutations']} "
+            "mutations per offspring"
         )
     return (
         f"{search['evaluations']} evaluations, search set {search['size']}, batch {search['batch']}"
@@ -361,10 +401,13 @@ CHECK = {
                 "jump",
                 "walk",
                 "walk_turn_walk",
+                "hop",
+                "roll",
+                "hop_or_roll",
             )
         ),
-        '"leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound", "jump", "walk" '
-        'or "walk_turn_walk" (a sequence of [[stage]]s)',
+        '"leap", "somersault", "pirouette", "shuffle", "cartwheel", "bound", "jump", "walk", '
+        '"hop", "roll", "hop_or_roll" or "walk_turn_walk" (a sequence of [[stage]]s)',
     ),
 }
 
@@ -525,7 +568,10 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
             **{k: (tuple(v) if k == "friction_direction" else v) for k, v in world_cfg.items()}
         ),
     )
-    if body_kind == "figure":
+    if body_kind == "figure" and controller_cfg["family"] == "spring_net":
+        settings = {k: v for k, v in controller_cfg.items() if k != "family"}
+        space = build("controller", lambda: SpringNetSpace(body, **settings))
+    elif body_kind == "figure":
         controller_cfg.setdefault("tau_min", 2 * simulation_cfg["dt"])
         controller_cfg.setdefault("tau_max", simulation_cfg["duration"] / 4)
         if controller_cfg["family"] == "sense_bsr":

@@ -197,6 +197,10 @@ def _override_search(search, args, where: str) -> None:
     from .config import ConfigError
 
     serial = isinstance(search, dict) and search.get("algorithm") == "serial_search"
+    evolution = isinstance(search, dict) and search.get("algorithm") == "evolve"
+    if evolution:
+        _override_evolve(search, args, where)
+        return
     if args.evaluations is not None:
         if serial:
             # Serial search counts generations: each evaluates every climber once.
@@ -222,6 +226,31 @@ def _override_search(search, args, where: str) -> None:
         if not serial:
             raise ConfigError(f'{where}--runs applies to [search] algorithm = "serial_search"')
         search["runs"] = args.runs
+
+
+def _override_evolve(search: dict, args, where: str) -> None:
+    """--evaluations for [search] algorithm = "evolve": the generations that evaluate at
+    least that many (the first evaluates `size`, each later one `4 size / 5`)."""
+    from .config import ConfigError
+
+    if args.batch is not None:
+        raise ConfigError(
+            f"{where}--batch applies to parallel_hill_climb; evolve evaluates each generation "
+            "in one call"
+        )
+    if getattr(args, "runs", None) is not None:
+        raise ConfigError(f'{where}--runs applies to [search] algorithm = "serial_search"')
+    if args.evaluations is None:
+        return
+    size = search.get("size", 2000)
+    if not isinstance(size, int) or isinstance(size, bool) or size < 5 or size % 5:
+        raise ConfigError(
+            f"{where}[search] size = {size!r}; allowed: an integer >= 5, a multiple of 5"
+        )
+    if args.evaluations < 1:
+        raise ConfigError(f"--evaluations = {args.evaluations}; allowed: >= 1")
+    later = max(0, args.evaluations - size)
+    search["generations"] = 1 + -(-later // (size * 4 // 5))
 
 
 def _load(path: Path, args):

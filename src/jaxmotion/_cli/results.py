@@ -24,7 +24,9 @@ from .._control.base import AbstractController
 from .._control.regimes import Regimes
 from .._control.sense_bsr import SenseBSR
 from .._control.sequence import Sequence as Composite
+from .._control.spring_net import SpringNet
 from .._control.time_bsr import TimeBSR
+from .._search.evolve import evolve
 from .._search.hill_climb import SearchResult, parallel_hill_climb
 from .._search.history import History
 from .._search.serial import serial_search
@@ -36,6 +38,7 @@ CONTROLLER_FAMILIES: dict[str, type[AbstractController]] = {
     "regimes": Regimes,
     "time_bsr": TimeBSR,
     "sense_bsr": SenseBSR,
+    "spring_net": SpringNet,
     "sequence": Composite,
 }
 FORMAT_VERSION = 1
@@ -159,6 +162,16 @@ def _run_search(experiment: Experiment, progress: bool) -> tuple[SearchResult, d
             progress=progress,
             # One History per run: the step's evaluations are all of theirs together.
             callback=lambda state, parts: clock(state, range(sum(len(p) for p in parts))),
+        )
+    elif s["algorithm"] == "evolve":
+        result = evolve(
+            experiment.task,
+            key=jr.key(experiment.seed),
+            generations=s["generations"],
+            size=s["size"],
+            mutations=s["mutations"],
+            progress=progress,
+            callback=clock,
         )
     else:
         result = parallel_hill_climb(
