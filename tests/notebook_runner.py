@@ -24,6 +24,8 @@ SMALL = {
     "MOTIONS": '("star_man",)',
     "FPS": "4",  # rendering the animations' frames is a large share of a notebook's run
     "GENERATIONS": "3",
+    "POPULATION": "20",  # spring_nets.ipynb: 4 survivors, one call of 16 per generation
+    "SHOW": "2",
     "ROUNDS": "1",
 }
 
