@@ -202,6 +202,12 @@ def test_snake_and_luxo_are_built_as_documented():
     np.testing.assert_allclose(np.degrees(luxo.ranges), [[-60, 60], [-75, 75], [-60, 60]])
     np.testing.assert_allclose(luxo.lengths, [0.25, 0.3, 0.3, 0.2])
     assert luxo.total_mass == pytest.approx(2.1)
+    # The documented senses: a positive angle turns the snake's head tip down and its tail
+    # tip up (against the root), and tips the lamp's lower arm forward.
+    bent = snake.pose([0.5, 0.5])
+    root = bent[0, 2]
+    assert bent[2, 2] < root < bent[3, 2]
+    assert luxo.pose([0.5, 0.0, 0.0])[2, 0] > luxo.pose()[2, 0]
     # Both rest on the floor; the lamp stands on its base.
     assert snake.pose()[:, 2].min() == pytest.approx(0.0)
     base = luxo.pose()[[0, 1], 2]
