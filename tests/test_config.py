@@ -265,3 +265,255 @@ def test_cli_runs_a_config_end_to_end_and_replays_it(tmp_path):
     report = json.loads(replay.stdout[replay.stdout.index("{") :])
     summary = json.loads((folder / "summary.json").read_text())
     assert report["fitness"] == summary["best_fitness"]
+
+
+# ------------------------------------------------------------------------- hostile input
+
+FLOAT32_OVERFLOW = r"allowed: .*magnitude at most 3.403e\+38"
+
+
+@pytest.mark.parametrize(
+    ("raw", "message"),
+    [
+        # Values that overflow float32 (the issue's reproduction: the search ran, then the
+        # summary failed on a fitness that was not finite).
+        (
+            minimal(objective={"forward": 1e300}),
+            r"\[objective\] forward = 1e\+300; " + FLOAT32_OVERFLOW,
+        ),
+        (
+            minimal(objective={"upright": {"weight": -1e39}}),
+            r"\[objective\] upright.weight = -1e\+39; " + FLOAT32_OVERFLOW,
+        ),
+        (minimal(world={"friction": 1e300}), r"\[world\] friction = 1e\+300; " + FLOAT32_OVERFLOW),
+        (minimal(world={"gravity": 1e300}), r"\[world\] gravity = 1e\+300; " + FLOAT32_OVERFLOW),
+        (
+            minimal(world={"friction_direction": [1e300, 0.0]}),
+            r"friction_direction = \[1e\+300, 0.0\]; " + FLOAT32_OVERFLOW,
+        ),
+        # Sizes beyond what XLA's static shapes hold (the issue's SIGABRT inside XLA).
+        (
+            minimal(controller={"num_regimes": 4611686018427387904}),
+            r"\[controller\] num_regimes = 4611686018427387904; allowed: an integer >= 1, at "
+            r"most 1000",
+        ),
+        (
+            minimal(search={"size": 4611686018427387904}),
+            r"\[search\] size = 4611686018427387904; allowed: an integer >= 1, at most 100000",
+        ),
+        (
+            minimal(search={"batch": 2**62}),
+            r"\[search\] batch = 4611686018427387904; allowed: an integer >= 1, at most 100000",
+        ),
+        (
+            minimal(search={"algorithm": "serial_search", "climbers": 1000, "runs": 1000}),
+            r"\[search\] runs = 1000 x climbers = 1000 = 1000000 controllers in one call; "
+            r"allowed: at most 100000",
+        ),
+        (
+            minimal(simulation={"duration": 5.0, "dt": 1e-12}),
+            r"\[simulation\] duration = 5.0 at dt = 1e-12 is 5e\+12 steps; allowed: at most "
+            r"10000000 steps",
+        ),
+        (
+            minimal(simulation={"duration": 1000.0, "dt": 1e-4, "save_dt": 1e-4}),
+            r"\[simulation\] duration = 1000.0 at save_dt = 0.0001 is 1e\+07 saved samples; "
+            r"allowed: at most 100000",
+        ),
+        (minimal(body=3), r"\[body\] must be a table of keys; got 3"),
+        (minimal(body={"lattice": ["cube"]}), r"\[body\] lattice = \['cube'\]; allowed: one of"),
+        (minimal(search=[1, 2]), r"\[search\] must be a table of keys"),
+        (dict(minimal(), name="../up"), r"name = '../up'; allowed: a string of 1 to 100 ASCII"),
+        (minimal(output={"directory": "a\x00b"}), r"\[output\] directory = 'a\\x00b'; allowed"),
+        (
+            minimal(objective={"x": {"term": ["forward"], "weight": 1.0}}),
+            r"\[objective\] .*unhashable type: 'list'",
+        ),
+    ],
+)
+def test_hostile_values_are_refused_before_compiling(raw, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_config(raw)
+
+
+# What a new user might write in place of a value: every key of the default config gets each.
+HOSTILE = [0, -1, 1e300, -1e300, 2**62, 1.5, float("nan"), float("inf"), "x", "", True, [], {}]
+
+
+def _mutations(raw):
+    """(label, mutated config) for every value of every section replaced by each hostile
+    value, every key removed, every section replaced by a value and an unknown key added."""
+    for section, table in raw.items():
+        if not isinstance(table, dict):
+            for value in HOSTILE:
+                yield f"{section}={value!r}", {**raw, section: value}
+            continue
+        for value in (3, "x", [1]):
+            yield f"[{section}]={value!r}", {**raw, section: value}
+        yield f"[{section}] extra", {**raw, section: {**table, "extra": 1}}
+        for key in table:
+            rest = {k: v for k, v in table.items() if k != key}
+            yield f"[{section}] -{key}", {**raw, section: rest}
+            for value in HOSTILE:
+                yield f"[{section}] {key}={value!r}", {**raw, section: {**table, key: value}}
+
+
+def test_a_corpus_of_mutated_default_configs_fails_cleanly_or_parses_to_bounded_sizes():
+    """Every mutation of the default config either raises `ConfigError` (never another
+    exception) or parses to a config whose values are finite, within float32 and whose
+    sizes are within the bounds checked before compiling."""
+    import math
+
+    from jaxmotion._cli.config import FLOAT32_MAX, MAX_BATCH, MAX_RULES, MAX_STEPS
+
+    raw = tomllib.loads(default_config_path().read_text())
+    outcomes = {"refused": 0, "parsed": 0}
+    for label, mutated in _mutations(raw):
+        try:
+            experiment = parse_config(mutated, name="mutant")
+        except ConfigError as e:
+            assert str(e), label
+            outcomes["refused"] += 1
+            continue
+        outcomes["parsed"] += 1
+        config = experiment.config
+        numbers = [
+            v
+            for table in config.values()
+            if isinstance(table, dict)
+            for v in table.values()
+            if isinstance(v, int | float) and not isinstance(v, bool)
+        ]
+        assert all(math.isfinite(v) and abs(v) <= FLOAT32_MAX for v in numbers), label
+        assert config["controller"]["num_regimes"] <= MAX_RULES, label
+        assert config["search"]["size"] <= MAX_BATCH >= config["search"]["batch"], label
+        steps = config["simulation"]["duration"] / config["simulation"]["dt"]
+        assert steps <= MAX_STEPS, label
+    # The corpus exercises both outcomes (a mutation such as `batch = 1` is a valid config).
+    assert outcomes["refused"] > 200 and outcomes["parsed"] > 10, outcomes
+
+
+def test_stale_partial_folders_of_dead_runs_are_cleaned_and_live_ones_kept(tmp_path):
+    """A run killed before it could clean up (SIGKILL, an abort inside XLA) leaves its
+    temporary folder; the next run in the same directory removes it, but never the
+    temporary folder of a run still going."""
+    import os
+
+    from jaxmotion._cli.results import new_folder
+
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    dead_pid = int(dead.stdout)  # that process has exited
+    stale = tmp_path / f".run-20260101-000000.pid{dead_pid}.abc_12.partial"
+    older = tmp_path / ".run-20260101-000000.xyz.partial"  # the naming before process ids
+    live = tmp_path / f".run-20260101-000000.pid{os.getpid()}.def.partial"
+    kept = tmp_path / "run-20260101-000000"  # a complete results folder
+    for folder in (stale, older, live, kept):
+        folder.mkdir()
+        (folder / "history.csv").write_text("evaluation\n")
+    final, tmp = new_folder(tmp_path, "next")
+    names = {p.name for p in tmp_path.iterdir()}
+    assert names == {live.name, kept.name, tmp.name}
+    assert tmp.name.startswith(f".{final.name}.pid{os.getpid()}.")
+
+
+def test_results_directory_that_is_a_file_is_refused(tmp_path):
+    from jaxmotion._cli.results import new_folder
+
+    blocker = tmp_path / "results"
+    blocker.write_text("not a folder")
+    with pytest.raises(
+        ConfigError, match=r"results directory .*deeper' cannot be created \(Not a directory\)"
+    ):
+        new_folder(blocker / "deeper", "x")
+
+
+def saved_regimes(**params):
+    """A saved two-regime controller with these parameters changed."""
+    base = {"times": [0.1, 0.6], "reflexes": [0, 1], "coefficients": [0.1, 0.2], "t_per": 1.0}
+    return {"family": "regimes", "params": {**base, **params}}
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ([1, 2], r"a saved controller must be a table"),
+        ({"family": ["regimes"]}, r"controller family = \['regimes'\]; allowed"),
+        ({"family": "regimes", "params": 3}, r"regimes controller's params = 3; allowed"),
+        (
+            saved_regimes(times=[0.1, 1e300]),
+            r"regimes controller's times = \[0.1, 1e\+300\]; allowed: finite numbers",
+        ),
+        (
+            saved_regimes(times=[0.1, "x"]),
+            r"regimes controller's times = \[0.1, 'x'\]; allowed",
+        ),
+        (
+            saved_regimes(times=[[0.1], [0.2, 0.3]]),
+            r"regimes controller's times = \[\[0.1\], \[0.2, 0.3\]\]; allowed: .*rectangular",
+        ),
+        ({"family": "regimes", "params": {"times": [0.1]}}, r"regimes controller: .*missing"),
+    ],
+)
+def test_hostile_saved_controllers_are_refused_naming_the_parameter(data, message):
+    with pytest.raises(ValueError, match=message):
+        controller_from_dict(data)
+
+
+def _cli(monkeypatch, capsys, *argv):
+    """`python -m jaxmotion ARGV` in this process (its devices are already set up):
+    the exit code and stderr."""
+    import jaxmotion._devices
+    from jaxmotion._cli.main import main
+
+    monkeypatch.setattr(jaxmotion._devices, "use_cpu_cores", lambda: 1)
+    code = main(list(argv))
+    return code, capsys.readouterr().err
+
+
+def test_cli_refuses_bad_options_and_folders_with_exit_code_2(tmp_path, monkeypatch, capsys):
+    config = str(ROOT / "configs" / "default.toml")
+    (tmp_path / "file").write_text("x")
+    out = str(tmp_path / "out")
+    cases = [
+        (("run", config, "--seed", "-1", "--out", out), "--seed = -1; allowed: an integer from 0"),
+        (("run", config, "--evaluations", "0", "--out", out), "--evaluations = 0; allowed"),
+        (("run", config, "--batch", str(2**62), "--out", out), "--batch = 4611686018427387904"),
+        (("run", config, "--out", str(tmp_path / "file")), "--out = '" + str(tmp_path / "file")),
+        (("replay", str(tmp_path)), "not a results folder (no config.toml"),
+        (("replay", str(tmp_path / "nothing")), "not a results folder (no such folder)"),
+    ]
+    for argv, message in cases:
+        code, err = _cli(monkeypatch, capsys, *argv)
+        assert code == 2 and message in err, (argv, err)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_run_whose_best_is_not_finite_finishes_cleanly(tmp_path, monkeypatch, capsys):
+    """`gravity = 1e30` is a float32 number, but every simulation blows up: the run still
+    writes its whole folder, reports the count of non-finite evaluations and exits 0."""
+    text = (ROOT / "configs" / "default.toml").read_text()
+    for old, new in (
+        ("gravity = 9.81", "gravity = 1e30"),
+        ("duration = 5.0", "duration = 0.2"),
+        ("evaluations = 10000", "evaluations = 16"),
+        ("size = 100", "size = 16"),
+        ("batch = 100", "batch = 16"),
+    ):
+        text = text.replace(old, new)
+    path = tmp_path / "heavy.toml"
+    path.write_text(text)
+    code, err = _cli(
+        monkeypatch, capsys, "run", str(path), "--out", str(tmp_path / "r"), "--no-animation"
+    )
+    assert code == 0, err
+    assert "best fitness -inf after 32 evaluations" in err
+    assert "32 of 32 evaluations blew up" in err
+    (folder,) = (tmp_path / "r").iterdir()
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["best_fitness"] == "-inf" and summary["nonfinite_evaluations"] == 32
+    assert len((folder / "history.csv").read_text().splitlines()) == 1 + 32

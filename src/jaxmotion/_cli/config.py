@@ -31,6 +31,22 @@ class ConfigError(ValueError):
 
 _REQUIRED = object()
 
+FLOAT32_MAX = 3.4028234663852886e38
+"""The largest float32: the simulations run in float32, so a number beyond it would become
+infinite inside the first compiled call."""
+
+# Upper bounds on the sizes a config may ask for, checked before anything compiles: far
+# beyond any shipped config, and far below what overflows XLA's static shapes (a search set
+# of 2**62 aborted the process inside XLA, leaving a partial results folder behind).
+MAX_BATCH = 100_000  # controllers evaluated in one call (search set, batch, climbers x runs)
+MAX_EVALUATIONS = 1_000_000_000
+MAX_GENERATIONS = 100_000_000
+MAX_RULES = 1_000  # regimes, rules of a BSR controller
+MAX_MASSES = 200  # a spring net's masses (n (n - 1) / 2 springs)
+MAX_STEPS = 10_000_000  # fixed steps of one simulation (e.g. 10,000 s at dt = 1 ms)
+MAX_SAVES = 100_000  # saved samples of one simulation (what the objectives see)
+MAX_SAMPLES = 1_000  # random starts per evaluation (robustness), mutations per offspring
+
 
 def read_toml(path: Path) -> dict[str, Any]:
     """A config file's table. **Raises:** `ConfigError` for a missing file or bad TOML."""
@@ -86,6 +102,8 @@ def _check_value(where: str, name: str, spec: Key, value: Any) -> Any:
             or not math.isfinite(value)
         ):
             raise fail()
+        if abs(value) > FLOAT32_MAX:
+            raise _too_large(where, name, value, what)
         value = float(value)
     elif spec.kind == "integer":
         if isinstance(value, bool) or not isinstance(value, int):
@@ -104,10 +122,35 @@ def _check_value(where: str, name: str, spec: Key, value: Any) -> Any:
             raise fail()
         if spec.length is not None and len(value) != spec.length:
             raise fail()
+        if any(abs(v) > FLOAT32_MAX for v in value):
+            raise _too_large(where, name, value, what)
         value = [float(v) for v in value]
     if spec.check is not None and not spec.check(value):
         raise fail()
     return value
+
+
+def _too_large(where: str, name: str, value: Any, what: str) -> "ConfigError":
+    return ConfigError(
+        f"{where} {name} = {value!r}; allowed: {what}, of magnitude at most "
+        f"{FLOAT32_MAX:.4g} (the simulations run in float32)"
+    )
+
+
+def _check_objective_numbers(table: Mapping[str, Any]) -> None:
+    """Every weight and numeric option of an [objective] table within float32 (the
+    `Objective` itself checks the terms, options and types)."""
+    for label, value in table.items():
+        entries = value.items() if isinstance(value, Mapping) else [(None, value)]
+        for option, v in entries:
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                continue
+            if not math.isfinite(v) or abs(v) > FLOAT32_MAX:
+                name = label if option is None else f"{label}.{option}"
+                raise ConfigError(
+                    f"[objective] {name} = {v!r}; allowed: a finite number of magnitude at "
+                    f"most {FLOAT32_MAX:.4g} (the simulations run in float32)"
+                )
 
 
 def _read_section(where: str, table: Any, schema: Mapping[str, Key]) -> dict[str, Any]:
@@ -162,20 +205,22 @@ FIGURE_BUILDERS: dict[str, Callable] = {
 
 def _body_schema(table: Mapping) -> tuple[dict[str, Key], Callable, str]:
     """The [body] schema: `lattice = NAME` (and the builder's sizes) or `figure = NAME`."""
-    if isinstance(table, Mapping) and "figure" in table:
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"[body] must be a table of keys; got {table!r}")
+    if "figure" in table:
         if "lattice" in table:
             raise ConfigError(
                 "[body] names both a lattice and a figure; allowed: one of `lattice = ...` "
                 "or `figure = ...`"
             )
         kind = table["figure"]
-        if kind not in FIGURE_BUILDERS:
+        if not isinstance(kind, str) or kind not in FIGURE_BUILDERS:
             raise ConfigError(
                 f"[body] figure = {kind!r}; allowed: one of {', '.join(map(repr, FIGURE_BUILDERS))}"
             )
         return {"figure": Key("string", _REQUIRED)}, FIGURE_BUILDERS[kind], "figure"
-    kind = table.get("lattice", "cube") if isinstance(table, Mapping) else None
-    if kind not in LATTICE_BUILDERS:
+    kind = table.get("lattice", "cube")
+    if not isinstance(kind, str) or kind not in LATTICE_BUILDERS:
         raise ConfigError(
             f"[body] lattice = {kind!r}; allowed: one of {', '.join(map(repr, LATTICE_BUILDERS))}"
         )
@@ -202,7 +247,7 @@ WORLD = {
 
 CONTROLLER = {
     "family": Key("string", "regimes", lambda v: v == "regimes", '"regimes" (for a lattice)'),
-    "num_regimes": Key("integer", 4, lambda v: v >= 1, ">= 1"),
+    "num_regimes": Key("integer", 4, lambda v: 1 <= v <= MAX_RULES, f">= 1, at most {MAX_RULES}"),
     "t_per": Key("number", 1.0, _positive, "> 0 (s)"),
     "amplitudes": Key(
         "numbers",
@@ -215,7 +260,7 @@ CONTROLLER = {
 
 TIME_BSR = {
     "family": Key("string", "time_bsr", lambda v: v == "time_bsr", '"time_bsr" (for a figure)'),
-    "num_rules": Key("integer", 4, lambda v: v >= 1, ">= 1"),
+    "num_rules": Key("integer", 4, lambda v: 1 <= v <= MAX_RULES, f">= 1, at most {MAX_RULES}"),
     "t_per": Key("number", 1.0, _positive, "> 0 (s)"),
     "tau_min": Key("number", None, _positive, "> 0 (s; default 2 dt, the second paper's)"),
     "tau_max": Key("number", None, _positive, "> 0 (s; default duration / 4)"),
@@ -226,7 +271,12 @@ TIME_BSR = {
 
 SENSE_BSR = {
     "family": Key("string", "sense_bsr", lambda v: v == "sense_bsr", '"sense_bsr" (for a figure)'),
-    "num_rules": Key("integer", 10, lambda v: v >= 1, ">= 1 (the second paper: 10)"),
+    "num_rules": Key(
+        "integer",
+        10,
+        lambda v: 1 <= v <= MAX_RULES,
+        f">= 1, at most {MAX_RULES} (the second paper: 10)",
+    ),
     "tau_min": TIME_BSR["tau_min"],
     "tau_max": TIME_BSR["tau_max"],
     "filter_time": Key("number", 0.0, _nonnegative, ">= 0 (s; 0: no low-pass filter)"),
@@ -245,7 +295,12 @@ SPRING_NET = {
     "family": Key(
         "string", "spring_net", lambda v: v == "spring_net", '"spring_net" (for a figure)'
     ),
-    "num_masses": Key("integer", 4, lambda v: v >= 2, ">= 2 and >= the figure's free joint angles"),
+    "num_masses": Key(
+        "integer",
+        4,
+        lambda v: 2 <= v <= MAX_MASSES,
+        f">= 2 and >= the figure's free joint angles, at most {MAX_MASSES}",
+    ),
     "tau": Key("number", 0.1, _positive, "> 0 (s; the joints' time constant)"),
     "mass_min": Key("number", 0.5, _positive, "> 0 (kg)"),
     "mass_max": Key("number", 2.0, _positive, "> 0 (kg)"),
@@ -266,6 +321,11 @@ def _controller_schema(table: Any, body_kind: str) -> dict[str, Key]:
     families = FAMILIES[body_kind]
     default = next(iter(families))
     given = table.get("family", default) if isinstance(table, Mapping) else default
+    if not isinstance(given, str):
+        raise ConfigError(
+            f"[controller] family = {given!r}; allowed: a string, one of "
+            f"{', '.join(repr(f) for f in families)}"
+        )
     if given not in families:
         known = {f for kinds in FAMILIES.values() for f in kinds}
         what = "an articulated figure" if body_kind == "figure" else "a mass-spring lattice"
@@ -295,45 +355,79 @@ SEARCH = {
         lambda v: v in SEARCHES,
         '"parallel_hill_climb", "serial_search" or "evolve"',
     ),
-    "evaluations": Key("integer", 25_000, lambda v: v >= 1, ">= 1"),
-    "size": Key("integer", 100, lambda v: v >= 1, ">= 1"),
-    "batch": Key("integer", 1, lambda v: v >= 1, ">= 1"),
+    "evaluations": Key(
+        "integer", 25_000, lambda v: 1 <= v <= MAX_EVALUATIONS, f">= 1, at most {MAX_EVALUATIONS}"
+    ),
+    "size": Key("integer", 100, lambda v: 1 <= v <= MAX_BATCH, f">= 1, at most {MAX_BATCH}"),
+    "batch": Key("integer", 1, lambda v: 1 <= v <= MAX_BATCH, f">= 1, at most {MAX_BATCH}"),
 }
 
 SERIAL_SEARCH = {
     "algorithm": SEARCH["algorithm"],
-    "climbers": Key("integer", 10, lambda v: v >= 1, ">= 1 (the second paper: C = 10)"),
-    "generations": Key("integer", 4000, lambda v: v >= 1, ">= 1 (G = 4,000)"),
-    "reseed_every": Key("integer", 200, lambda v: v >= 1, ">= 1 (R = 200)"),
+    "climbers": Key(
+        "integer",
+        10,
+        lambda v: 1 <= v <= MAX_BATCH,
+        f">= 1, at most {MAX_BATCH} (the second paper: C = 10)",
+    ),
+    "generations": Key(
+        "integer",
+        4000,
+        lambda v: 1 <= v <= MAX_GENERATIONS,
+        f">= 1, at most {MAX_GENERATIONS} (G = 4,000)",
+    ),
+    "reseed_every": Key(
+        "integer",
+        200,
+        lambda v: 1 <= v <= MAX_GENERATIONS,
+        f">= 1, at most {MAX_GENERATIONS} (R = 200)",
+    ),
     "enrich": Key(
         "integer",
         0,
-        lambda v: v >= 0,
-        ">= 0 (rounds of relevance-heuristic reinitialisation of the first set; sense_bsr)",
+        lambda v: 0 <= v <= MAX_SAMPLES,
+        f">= 0, at most {MAX_SAMPLES} (rounds of relevance-heuristic reinitialisation of the first "
+        "set; sense_bsr)",
     ),
     "runs": Key(
-        "integer", 1, lambda v: v >= 1, ">= 1 (independent runs batched together; best kept)"
+        "integer",
+        1,
+        lambda v: 1 <= v <= MAX_BATCH,
+        f">= 1, at most {MAX_BATCH} (independent runs batched together; best kept)",
     ),
 }
 
 EVOLVE = {
     "algorithm": SEARCH["algorithm"],
     "generations": Key(
-        "integer", 20, lambda v: v >= 1, ">= 1 (the first, random, one included; the paper: 20)"
+        "integer",
+        20,
+        lambda v: 1 <= v <= MAX_GENERATIONS,
+        f">= 1, at most {MAX_GENERATIONS} (the first, random, one included; the paper: 20)",
     ),
     "size": Key(
         "integer",
         2000,
-        lambda v: v >= 5 and v % 5 == 0,
-        ">= 5, a multiple of 5 (the population; the paper: 2,000)",
+        lambda v: 5 <= v <= MAX_BATCH and v % 5 == 0,
+        f">= 5, a multiple of 5, at most {MAX_BATCH} (the population; the paper: 2,000)",
     ),
-    "mutations": Key("integer", 3, lambda v: v >= 1, ">= 1 (each offspring gets 1..mutations)"),
+    "mutations": Key(
+        "integer",
+        3,
+        lambda v: 1 <= v <= MAX_SAMPLES,
+        f">= 1, at most {MAX_SAMPLES} (each offspring gets 1..mutations)",
+    ),
 }
 
 SEARCHES = {"parallel_hill_climb": SEARCH, "serial_search": SERIAL_SEARCH, "evolve": EVOLVE}
 
 ROBUSTNESS = {
-    "samples": Key("integer", 4, lambda v: v >= 1, ">= 1 (random starts per evaluation)"),
+    "samples": Key(
+        "integer",
+        4,
+        lambda v: 1 <= v <= MAX_SAMPLES,
+        f">= 1, at most {MAX_SAMPLES} (random starts per evaluation)",
+    ),
     "angles": Key("number", 0.1, _nonnegative, ">= 0 (rad, each free joint angle)"),
     "orientation": Key("number", 0.1, _nonnegative, ">= 0 (rad, the root's turn)"),
     "velocity": Key("number", 0.2, _nonnegative, ">= 0 (m/s, each component)"),
@@ -347,7 +441,7 @@ def _search_schema(table: Any) -> dict[str, Key]:
         if isinstance(table, Mapping)
         else "parallel_hill_climb"
     )
-    return SEARCHES.get(algorithm, SEARCH)
+    return SEARCHES.get(algorithm, SEARCH) if isinstance(algorithm, str) else SEARCH
 
 
 def search_evaluations(search: Mapping[str, Any]) -> int:
@@ -380,7 +474,12 @@ def search_plan(search: Mapping[str, Any]) -> str:
 
 
 OUTPUT = {
-    "directory": Key("string", "results", lambda v: bool(v.strip()), "(not empty)"),
+    "directory": Key(
+        "string",
+        "results",
+        lambda v: bool(v.strip()) and "\x00" not in v,
+        "(a path: not empty, no NUL character)",
+    ),
     "animation": Key("bool", True),
     "fps": Key("integer", 25, lambda v: 1 <= v <= 100, "from 1 to 100"),
 }
@@ -421,8 +520,13 @@ TOP = {
     "name": Key(
         "string",
         None,
-        lambda v: bool(v) and all(c.isalnum() or c in "-_." for c in v),
-        "of letters, digits, '-', '_' or '.'",
+        lambda v: (
+            0 < len(v) <= 100
+            and v.isascii()
+            and not v.startswith(".")
+            and all(c.isalnum() or c in "-_." for c in v)
+        ),
+        "of 1 to 100 ASCII letters, digits, '-', '_' or '.', not starting with '.'",
     ),
     "seed": Key("integer", 0, lambda v: 0 <= v < 2**32, "from 0 to 2**32 - 1"),
 }
@@ -518,6 +622,24 @@ def _check_needs(check_cfg: Mapping[str, Any], body, body_cfg: Mapping[str, Any]
         )
 
 
+def _check_steps(simulation: Mapping[str, Any]) -> None:
+    """At most `MAX_STEPS` fixed steps and `MAX_SAVES` saved samples per simulation."""
+    duration, dt = simulation["duration"], simulation["dt"]
+    if duration / dt > MAX_STEPS:
+        raise ConfigError(
+            f"[simulation] duration = {duration!r} at dt = {dt!r} is {duration / dt:.4g} steps; "
+            f"allowed: at most {MAX_STEPS} steps per simulation (a longer dt or duration "
+            "shorter)"
+        )
+    save_dt = simulation["save_dt"]
+    if duration / save_dt > MAX_SAVES:
+        raise ConfigError(
+            f"[simulation] duration = {duration!r} at save_dt = {save_dt!r} is "
+            f"{duration / save_dt:.4g} saved samples; allowed: at most {MAX_SAVES} per "
+            "simulation (a longer save_dt)"
+        )
+
+
 def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
     head = _top_level(raw, name)
     resolved: dict[str, Any] = dict(head)
@@ -535,11 +657,20 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
     objective_raw = raw["objective"]
     if not isinstance(objective_raw, Mapping) or not objective_raw:
         raise ConfigError(f"[objective] must be a non-empty table of terms; got {objective_raw!r}")
+    _check_objective_numbers(objective_raw)
     if "simulation" not in raw:
         raise ConfigError("the config has no [simulation] section (duration = ... is required)")
     simulation_cfg = _read_section("[simulation]", raw["simulation"], SIMULATION)
+    _check_steps(simulation_cfg)
     search_table = raw.get("search", {})
     search_cfg = _read_section("[search]", search_table, _search_schema(search_table))
+    if search_cfg["algorithm"] == "serial_search":
+        width = search_cfg["runs"] * search_cfg["climbers"]
+        if width > MAX_BATCH:
+            raise ConfigError(
+                f"[search] runs = {search_cfg['runs']} x climbers = {search_cfg['climbers']} = "
+                f"{width} controllers in one call; allowed: at most {MAX_BATCH}"
+            )
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
     robust_cfg = None
     if "robustness" in raw:
@@ -556,7 +687,7 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
     def build(section: str, make: Callable[[], Any]):
         try:
             return make()
-        except ValueError as e:
+        except (ValueError, TypeError, OverflowError) as e:
             raise ConfigError(f"[{section}] {e}") from None
 
     body = build(

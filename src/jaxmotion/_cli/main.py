@@ -2,6 +2,7 @@
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -302,20 +303,23 @@ def _run(path: Path, args) -> int:
             if speed
             else f"{summary['evals_per_s']:.0f} evals/s"
         )
-        terms = ", ".join(
-            f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}"
-            for k, v in summary["terms"].items()
-        )
+        terms = ", ".join(f"{k} {_short(v)}" for k, v in summary["terms"].items())
         print(
-            f"best fitness {summary['best_fitness']:.4g} after {summary['evaluations']} "
+            f"best fitness {_short(summary['best_fitness'])} after {summary['evaluations']} "
             f"evaluations in {summary['search_time_s']:.1f} s ({speed}); terms: {terms}",
             file=sys.stderr,
         )
+        if summary.get("nonfinite_evaluations"):
+            print(
+                f"{summary['nonfinite_evaluations']} of {summary['evaluations']} evaluations "
+                "blew up (non-finite; scored -inf)",
+                file=sys.stderr,
+            )
         if summary.get("check"):
             print(_check_lines(summary["check"]), file=sys.stderr)
         if summary.get("runs"):
             checked = [r for r in summary["runs"] if r["check"] is not None]
-            fits = ", ".join(f"{r['best_fitness']:.4g}" for r in summary["runs"])
+            fits = ", ".join(_short(r["best_fitness"]) for r in summary["runs"])
             line = f"{len(summary['runs'])} independent runs, best fitness: {fits}"
             if checked:
                 passed = sum(r["check"]["passed"] for r in checked)
@@ -323,6 +327,12 @@ def _run(path: Path, args) -> int:
             print(line, file=sys.stderr)
     print(folder)
     return 0
+
+
+def _short(value) -> str:
+    """A fitness or term as the summary holds it: a number, or "-inf", "inf", "nan" for one
+    that is not finite."""
+    return f"{value:.4g}" if isinstance(value, int | float) else str(value)
 
 
 def _check_lines(check: dict) -> str:
@@ -381,13 +391,10 @@ def _replay_stages(args) -> int:
 
 
 def _replay(args) -> int:
-    import tomllib
+    from .results import load_result, results_config
 
-    from .results import load_result
-
-    with (Path(args.results) / "config.toml").open("rb") as f:
-        if "stage" in tomllib.load(f):
-            return _replay_stages(args)
+    if "stage" in results_config(args.results):
+        return _replay_stages(args)
     experiment, controller = load_result(args.results)
     task = experiment.task
     trajectory = task.simulate(controller, solver=args.solver)
@@ -460,6 +467,45 @@ def _compare(args) -> int:
     return 0
 
 
+def _check_options(args) -> None:
+    """The numeric and path options, checked before anything is loaded or compiled.
+
+    **Raises:** `ConfigError` naming the option, its value and what is allowed."""
+    from .config import MAX_BATCH, MAX_EVALUATIONS, ConfigError
+
+    bounds = {
+        "seed": (0, 2**32 - 1),
+        "evaluations": (1, MAX_EVALUATIONS),
+        "batch": (1, MAX_BATCH),
+        "runs": (1, MAX_BATCH),
+        "top_k": (1, MAX_BATCH),
+    }
+    for name, (lo, hi) in bounds.items():
+        value = getattr(args, name, None)
+        if value is not None and not lo <= value <= hi:
+            option = "--" + name.replace("_", "-")
+            raise ConfigError(f"{option} = {value}; allowed: an integer from {lo} to {hi}")
+    every = getattr(args, "checkpoint_every", None)
+    if every is not None and not (math.isfinite(every) and every > 0):
+        raise ConfigError(
+            f"--checkpoint-every = {every}; allowed: a number of seconds > 0 (finite)"
+        )
+    for name in ("out", "gif"):
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        option = "--" + name
+        if not value.strip() or "\x00" in value:
+            raise ConfigError(f"{option} = {value!r}; allowed: a path (not empty)")
+        path = Path(value)
+        if name == "out" and path.exists() and not path.is_dir():
+            raise ConfigError(
+                f"{option} = {value!r} is a file; allowed: a folder (existing or not)"
+            )
+        if name == "gif" and path.is_dir():
+            raise ConfigError(f"{option} = {value!r} is a folder; allowed: a file path")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     # One CPU device per core, before anything starts JAX (the application's call).
@@ -469,6 +515,7 @@ def main(argv: list[str] | None = None) -> int:
     from .config import ConfigError, default_config_path, search_evaluations
 
     try:
+        _check_options(args)
         if args.command is None:
             return _run(default_config_path(), args)
         if args.command == "run":

@@ -6,6 +6,7 @@ import datetime as _dt
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
 import time
@@ -32,7 +33,15 @@ from .._search.history import History
 from .._search.serial import serial_search
 from .._sim.trajectory import Trajectory, concatenate_trajectories
 from .._task import Task
-from .config import SEQUENCE_CHECKS, ConfigError, Experiment, parse_config, search_plan
+from .config import (
+    FLOAT32_MAX,
+    SEQUENCE_CHECKS,
+    ConfigError,
+    Experiment,
+    parse_config,
+    read_toml,
+    search_plan,
+)
 
 CONTROLLER_FAMILIES: dict[str, type[AbstractController]] = {
     "regimes": Regimes,
@@ -79,14 +88,26 @@ def controller_to_dict(controller: AbstractController, family: str | None = None
 def controller_from_dict(data: dict[str, Any]) -> AbstractController:
     """Rebuild a controller saved by `controller_to_dict` (checking its values).
 
-    **Raises:** `ValueError` naming an unknown family or a bad parameter.
+    Every value is checked before anything compiles: a number must be finite and within
+    float32 (the simulations' precision), a list of them rectangular, and the family's own
+    constructor checks the rest (ranges, shapes).
+
+    **Raises:** `ValueError` naming an unknown family, a missing, unknown or bad parameter.
     """
+    if not isinstance(data, dict):
+        raise ValueError(
+            f"a saved controller must be a table {{'family': ..., 'params': ...}}; got "
+            f"{type(data).__name__}"
+        )
     family = data.get("family")
-    if family not in CONTROLLER_FAMILIES:
+    if not isinstance(family, str) or family not in CONTROLLER_FAMILIES:
         known = ", ".join(map(repr, CONTROLLER_FAMILIES))
         raise ValueError(f"controller family = {family!r}; allowed: {known}")
     cls = CONTROLLER_FAMILIES[family]
-    params = dict(data.get("params", {}))
+    params = data.get("params", {})
+    if not isinstance(params, dict):
+        raise ValueError(f"{family} controller's params = {params!r}; allowed: a table")
+    params = dict(params)
     names = (
         ["controllers", "transitions"]
         if cls is Composite
@@ -105,9 +126,46 @@ def controller_from_dict(data: dict[str, Any]) -> AbstractController:
                 "controllers ({'family': ..., 'params': ...})"
             )
         return Composite([controller_from_dict(c) for c in children], params.get("transitions"))
+    missing = [
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.name not in params
+        and f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+    ]
+    for name, value in params.items():
+        _check_saved_value(family, name, value)
     if "amplitudes" in params:
         params["amplitudes"] = tuple(params["amplitudes"])
-    return cls(**params)
+    try:
+        return cls(**params)
+    except (TypeError, ValueError, OverflowError, IndexError) as e:
+        more = f" (missing: {', '.join(missing)})" if missing else ""
+        raise ValueError(f"{family} controller: {e}{more}") from None
+
+
+def _check_saved_value(family: str, name: str, value: Any) -> None:
+    """A saved parameter: a number, or a rectangular nest of lists of numbers, each finite
+    and within float32."""
+    bad = ValueError(
+        f"{family} controller's {name} = {_brief(value)}; allowed: finite numbers (or lists "
+        f"of them, rectangular) of magnitude at most {FLOAT32_MAX:.4g}"
+    )
+    if value is None or isinstance(value, bool):
+        return  # a setting (e.g. no mirror), checked by the family's constructor
+    if isinstance(value, str):
+        raise bad
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise bad from None
+    if not np.all(np.isfinite(array)) or np.any(np.abs(array) > FLOAT32_MAX):
+        raise bad
+
+
+def _brief(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _json_number(x: float) -> float | str:
@@ -194,18 +252,70 @@ def _run_search(experiment: Experiment, progress: bool) -> tuple[SearchResult, d
     return result, timing
 
 
+_PARTIAL = re.compile(r"^\..+\.pid(\d+)\.[^.]+\.partial$")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's process
+    return True
+
+
+def clean_partial_folders(out_root: Path) -> list[Path]:
+    """Remove the temporary folders (`.<name>-<time>.pid<PID>.<random>.partial/`) that runs
+    killed before they could clean up (SIGKILL, a crash inside XLA) left in `out_root`:
+    those whose process is gone, and those of the older naming without a process id. A
+    running process's folder is kept. Returns the folders removed."""
+    removed = []
+    if not out_root.is_dir():
+        return removed
+    for path in out_root.iterdir():
+        if not (path.name.startswith(".") and path.name.endswith(".partial")):
+            continue
+        match = _PARTIAL.match(path.name)
+        if match is not None and _alive(int(match.group(1))):
+            continue
+        shutil.rmtree(path, ignore_errors=True)
+        removed.append(path)
+    return removed
+
+
 def new_folder(out_root: Path, name: str) -> tuple[Path, Path]:
     """A results folder's final path `<out_root>/<name>-<timestamp>[-n]/` (not yet there)
     and the hidden temporary folder beside it to assemble it in (rename it into place when
-    complete, remove it otherwise: nothing half-written is left behind)."""
-    out_root.mkdir(parents=True, exist_ok=True)
+    complete, remove it otherwise: nothing half-written is left behind). The temporary
+    folder's name holds this process's id, so that a later run removes it if this process
+    is killed before it can (`clean_partial_folders`, called here first).
+
+    **Raises:** `ConfigError` if `out_root` cannot be made a folder."""
+    try:
+        out_root.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ConfigError(
+            f"results directory {str(out_root)!r} cannot be created ({e.strerror or e}); "
+            "allowed: a folder you can write to"
+        ) from None
+    clean_partial_folders(out_root)
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     final = out_root / f"{name}-{stamp}"
     n = 1
     while final.exists():
         n += 1
         final = out_root / f"{name}-{stamp}-{n}"
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=out_root))
+    try:
+        tmp = Path(
+            tempfile.mkdtemp(
+                prefix=f".{final.name}.pid{os.getpid()}.", suffix=".partial", dir=out_root
+            )
+        )
+    except OSError as e:
+        raise ConfigError(
+            f"results directory {str(out_root)!r} is not writable ({e.strerror or e})"
+        ) from None
     return final, tmp
 
 
@@ -564,23 +674,67 @@ def run_sequence_check(experiment: Experiment, trajectories: Sequence[Trajectory
     return run_check(experiment, concatenate_trajectories(trajectories))
 
 
-def _read_config(folder: Path) -> Experiment:
-    import tomllib
+def results_config(folder: str | Path) -> dict[str, Any]:
+    """The TOML table of a results folder's `config.toml`.
 
-    with (folder / "config.toml").open("rb") as f:
-        raw = tomllib.load(f)
+    **Raises:** `ConfigError` if `folder` is not a folder or holds no readable
+    `config.toml` (it is then not a results folder)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError(f"{folder}: not a results folder (no such folder)")
+    if not (folder / "config.toml").is_file():
+        raise ConfigError(
+            f"{folder}: not a results folder (no config.toml; a results folder holds "
+            "config.toml, best_controller.json, history.csv and summary.json)"
+        )
+    return read_toml(folder / "config.toml")
+
+
+def _read_config(folder: Path) -> Experiment:
+    raw = results_config(folder)
+    name = raw.get("name")
     try:
-        return parse_config(raw, name=raw.get("name", folder.name))
+        return parse_config(raw, name=name if isinstance(name, str) else folder.name)
     except ConfigError as e:
         raise ConfigError(f"{folder / 'config.toml'}: {e}") from None
+
+
+def read_controller(path: Path, task: Task | None = None) -> AbstractController:
+    """A controller saved as JSON (`controller_to_dict`), checked value by value and, given
+    the task it was found for, against the shapes of that task's controllers.
+
+    **Raises:** `ConfigError` naming the file for a missing file, bad JSON or a bad
+    controller."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise ConfigError(
+            f"{path}: no such file (not a results folder of a complete run)"
+        ) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{path}: not valid JSON: {e}") from None
+    try:
+        controller = controller_from_dict(data)
+    except ValueError as e:
+        raise ConfigError(f"{path}: {e}") from None
+    if task is not None and not isinstance(controller, Composite):
+        expected = jax.eval_shape(lambda: task.space.sample(key=jr.key(0)))
+        shapes = lambda tree: [jnp.shape(a) for a in jax.tree_util.tree_leaves(tree)]
+        if type(controller) is not type(expected) or shapes(controller) != shapes(expected):
+            raise ConfigError(
+                f"{path}: the controller does not fit its config's [controller] and [body]: "
+                f"{type(controller).__name__} with parameter shapes {shapes(controller)}; "
+                f"allowed: {type(expected).__name__} with {shapes(expected)}"
+            )
+    return controller
 
 
 def load_result(folder: str | Path) -> tuple[Experiment, AbstractController]:
     """Load a results folder: its experiment (from `config.toml`) and best controller.
 
-    **Raises:** `FileNotFoundError` if the folder lacks those files; `ConfigError` or
-    `ValueError` if they do not check out, or if the folder holds a multi-stage run (load
-    that with `load_stages`).
+    **Raises:** `ConfigError` (a `ValueError`) if the folder lacks those files, if they do
+    not check out (the controller is checked value by value and against the config's
+    shapes), or if the folder holds a multi-stage run (load that with `load_stages`).
     """
     folder = Path(folder)
     experiment = _read_config(folder)
@@ -589,17 +743,15 @@ def load_result(folder: str | Path) -> tuple[Experiment, AbstractController]:
             f"{folder} holds a multi-stage run ({len(experiment.stages)} stages); load it "
             "with load_stages"
         )
-    data = json.loads((folder / "best_controller.json").read_text())
-    return experiment, controller_from_dict(data)
+    return experiment, read_controller(folder / "best_controller.json", experiment.task)
 
 
 def load_stages(folder: str | Path) -> tuple[Experiment, tuple[AbstractController, ...]]:
     """Load a multi-stage results folder: its experiment (from `config.toml`) and each
     stage's best controller, in order (replay them with `replay_stages`).
 
-    **Raises:** `FileNotFoundError` if the folder lacks those files; `ConfigError` or
-    `ValueError` if they do not check out, or if the folder holds a single search (load
-    that with `load_result`).
+    **Raises:** `ConfigError` (a `ValueError`) if the folder lacks those files, if they do
+    not check out, or if the folder holds a single search (load that with `load_result`).
     """
     folder = Path(folder)
     experiment = _read_config(folder)
@@ -608,5 +760,5 @@ def load_stages(folder: str | Path) -> tuple[Experiment, tuple[AbstractControlle
     controllers = []
     for number, stage in enumerate(experiment.stages, start=1):
         path = folder / stage_folder(number, stage.name) / "best_controller.json"
-        controllers.append(controller_from_dict(json.loads(path.read_text())))
+        controllers.append(read_controller(path, stage.task))
     return experiment, tuple(controllers)
