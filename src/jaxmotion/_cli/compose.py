@@ -153,7 +153,7 @@ def parse_compose_config(
     first = phases[0][1]
     dt = first.task.dt
     tick = script_cfg.get("tick", first.task.control_dt or dt)
-    duration = simulation_cfg.get("duration", sum(ticks) * tick)
+    duration = simulation_cfg.get("duration", round(sum(ticks) * tick, 12))
     try:
         composite = Composite(
             first.task.body,
