@@ -18,9 +18,12 @@ from .hill_climb import (
     _check_positive_int,
     _fold,
     _sample,
+    finite_fitness,
+    finite_members,
     ranked_result,
 )
 from .history import History
+from .serial import _select
 
 # Controllers per device in one compiled call. Above about 200 per device (measured on the
 # snake and the Luxo lamp, 2 devices, with spring nets and with `TimeBSR` alike: 160 per
@@ -163,6 +166,7 @@ class Evolve(eqx.Module):
 
 @eqx.filter_jit
 def _first(population, fitness, key) -> EvolveState:
+    fitness = finite_fitness(population, fitness)
     order = jnp.argsort(-fitness, stable=True)
     size = fitness.shape[0]
     return EvolveState(
@@ -213,6 +217,15 @@ def _ask(search: Evolve, task: Task, state: EvolveState):
 def _tell(search: Evolve, state: EvolveState, children, fitness) -> EvolveState:
     s = search.survivors
     survivors = jax.tree_util.tree_map(lambda a: a[:s], state.population)
+    # A child with a parameter that is not finite (only an extreme parent or space makes
+    # one) scores -inf and is replaced by a copy of its parent (a new net: by survivor 0),
+    # so that no NaN enters the population.
+    fitness = finite_fitness(children, fitness)
+    finite = finite_members(children)
+    source = jnp.concatenate([jnp.repeat(jnp.arange(s), 3), jnp.zeros(s, dtype=jnp.int32)])
+    children = jax.tree_util.tree_map(
+        lambda c, p: _select(finite, c, p[source]), children, survivors
+    )
     both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), survivors, children)
     scores = jnp.concatenate([state.fitness[:s], fitness])
     origin = jnp.concatenate(

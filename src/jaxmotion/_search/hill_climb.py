@@ -124,8 +124,27 @@ def _sample(search: ParallelHillClimb, task: Task, key):
     return task.sample(search.size, key=sample_key), next_key
 
 
+def finite_members(population) -> jax.Array:
+    """Whether every parameter of each controller of `population` (leading axis) is
+    finite."""
+    leaves = jax.tree_util.tree_leaves(population)
+    ok = jnp.ones(leaves[0].shape[0], dtype=bool)
+    for a in leaves:
+        if jnp.issubdtype(a.dtype, jnp.inexact):
+            ok &= jnp.all(jnp.isfinite(a.reshape(a.shape[0], -1)), axis=1)
+    return ok
+
+
+def finite_fitness(population, fitness) -> jax.Array:
+    """`fitness` with `-inf` (the worst) for every NaN and for every controller of
+    `population` (leading axis) with a parameter that is not finite: such a controller can
+    never displace a finite one, and no NaN enters a search's state or history."""
+    return jnp.where(~jnp.isnan(fitness) & finite_members(population), fitness, -jnp.inf)
+
+
 @eqx.filter_jit
 def _rank(population, fitness, key) -> HillClimbState:
+    fitness = finite_fitness(population, fitness)
     order = jnp.argsort(-fitness, stable=True)
     return HillClimbState(
         population=jax.tree_util.tree_map(lambda a: a[order], population),
@@ -149,6 +168,7 @@ def _ask(search: ParallelHillClimb, task: Task, state: HillClimbState):
 @eqx.filter_jit
 def _tell(search: ParallelHillClimb, state: HillClimbState, children, fitness, num_valid):
     valid = jnp.arange(search.batch) < num_valid
+    fitness = finite_fitness(children, fitness)
     ranked = jnp.concatenate([state.fitness, jnp.where(valid, fitness, -jnp.inf)])
     # Stable sort on -fitness: among equal fitness the incumbents (listed first) rank higher.
     keep = jnp.argsort(-ranked, stable=True)[: search.size]

@@ -16,7 +16,7 @@ from .._control.base import AbstractController
 from .._sim.compile import simulation_jit
 from .._sim.execution import batch_size, padded, share
 from .._task import Task
-from .hill_climb import _STARTS, SearchResult, _check_positive_int
+from .hill_climb import _STARTS, SearchResult, _check_positive_int, finite_fitness
 from .history import History
 
 
@@ -257,7 +257,7 @@ def _start(population, fitness, keys, motion) -> SerialSearchState:
     return SerialSearchState(
         population=_per_seed(population, seeds),
         # A NaN must never enter the set: it would compare false against everything.
-        fitness=jnp.where(jnp.isnan(fitness), -jnp.inf, fitness),
+        fitness=finite_fitness(population, fitness.reshape(-1)).reshape(seeds, -1),
         key=keys,
         generation=jnp.asarray(0, dtype=jnp.int32),
         evaluations=jnp.asarray(fitness.shape[1], dtype=jnp.int32),
@@ -285,10 +285,10 @@ def _enriched(task: Task, state: SerialSearchState, round_: int):
 def _replace(state: SerialSearchState, candidates, fitness, motion) -> SerialSearchState:
     """Every climber replaced by its candidate, whatever the fitness (enrichment)."""
     seeds, climbers = state.fitness.shape
-    fitness = fitness.reshape(seeds, climbers)
+    fitness = finite_fitness(candidates, fitness.reshape(-1)).reshape(seeds, climbers)
     return SerialSearchState(
         population=_per_seed(candidates, seeds),
-        fitness=jnp.where(jnp.isnan(fitness), -jnp.inf, fitness),
+        fitness=fitness,
         key=state.key,
         generation=state.generation,
         evaluations=state.evaluations + climbers,
@@ -327,9 +327,9 @@ def _reseeded(population, fitness, half: int):
 @eqx.filter_jit
 def _tell(state: SerialSearchState, mutants, fitness, motion, reseed_every):
     seeds, climbers = state.fitness.shape
+    fitness = finite_fitness(mutants, fitness.reshape(-1)).reshape(state.fitness.shape)
     mutants = _per_seed(mutants, seeds)
     motion = None if motion is None else _per_seed(motion, seeds)
-    fitness = fitness.reshape(state.fitness.shape)
     # Strictly greater: ties keep the incumbent, and NaN or -inf is never kept.
     better = fitness > state.fitness
     # Each climber with its motion (if kept), selected and reseeded together.
