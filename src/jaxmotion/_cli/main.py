@@ -3,7 +3,9 @@
 import argparse
 import json
 import math
+import signal
 import sys
+import threading
 from pathlib import Path
 
 DESCRIPTION = """\
@@ -24,6 +26,8 @@ row per evaluation), learning_plot.png, motion.gif and summary.json. Fitness is 
 A config with [[stage]] tables runs one search per stage, each starting where the previous
 stage's best motion ended; its folder holds a subfolder per stage (stage-1-NAME/, ...), the
 whole sequence's motion.gif and a summary.json of every stage.
+A single search saves a checkpoint every --checkpoint-every seconds and on Ctrl-C or SIGTERM;
+`run CONFIG.toml --resume CHECKPOINT` continues it to the very result of an uninterrupted run.
 """
 
 
@@ -49,6 +53,20 @@ def _parser() -> argparse.ArgumentParser:
         )
         q.add_argument("--no-animation", action="store_true", help="do not write motion.gif")
         q.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+        q.add_argument(
+            "--checkpoint-every",
+            type=float,
+            default=30.0,
+            metavar="SECONDS",
+            help="save the search's state to <out>/<name>-<time>.checkpoint this often and "
+            "on Ctrl-C or SIGTERM (default 30)",
+        )
+        q.add_argument(
+            "--resume",
+            metavar="CHECKPOINT",
+            help="continue an interrupted search of the same config from its checkpoint (the "
+            "file, or the results directory holding it); finishes as the uninterrupted run",
+        )
 
     run = sub.add_parser(
         "run",
@@ -277,13 +295,35 @@ def _run(path: Path, args) -> int:
         else:
             plan = search_plan(experiment.search)
         say(f"jaxmotion: {experiment.name}: {plan}, seed {experiment.seed}")
-    folder = run_experiment(
-        experiment,
-        directory=args.out,
-        progress=not args.quiet,
-        animation=False if args.no_animation else None,
-        report=say,
-    )
+    # Ctrl-C and SIGTERM (a scheduler's stop) ask the search to stop after its current step,
+    # with a checkpoint; a second one stops at once. (A KeyboardInterrupt raised wherever the
+    # signal lands can be swallowed, e.g. inside a garbage-collection callback.)
+    stop = threading.Event()
+    handled = (signal.SIGINT, signal.SIGTERM)
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = {}
+
+    def request(signum, frame):
+        del frame
+        stop.set()
+        signal.signal(signum, _terminate)
+
+    if main_thread and not experiment.stages:
+        previous = {s: signal.signal(s, request) for s in handled}
+    try:
+        folder = run_experiment(
+            experiment,
+            directory=args.out,
+            progress=not args.quiet,
+            animation=False if args.no_animation else None,
+            report=say,
+            checkpoint_every=None if experiment.stages else args.checkpoint_every,
+            resume=args.resume,
+            stop=stop.is_set,
+        )
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
     if experiment.stages:
         if say is not None:
             summary = json.loads((folder / "summary.json").read_text())
@@ -506,6 +546,11 @@ def _check_options(args) -> None:
             raise ConfigError(f"{option} = {value!r} is a folder; allowed: a file path")
 
 
+def _terminate(signum, frame):
+    del signum, frame
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     # One CPU device per core, before anything starts JAX (the application's call).
@@ -541,8 +586,16 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
+        saved = getattr(e, "checkpoint", None)
         print("interrupted; no results were written", file=sys.stderr)
+        if saved is not None:
+            config = getattr(args, "config", None) or default_config_path()
+            print(
+                f"the search so far is saved in {saved}; continue it with:\n"
+                f"  python -m jaxmotion run {config} --resume {saved}",
+                file=sys.stderr,
+            )
         return 130
 
 

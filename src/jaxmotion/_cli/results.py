@@ -33,6 +33,7 @@ from .._search.history import History
 from .._search.serial import serial_search
 from .._sim.trajectory import Trajectory, concatenate_trajectories
 from .._task import Task
+from .checkpoint import SUFFIX, Progress, find_checkpoint, load_checkpoint, save_checkpoint
 from .config import (
     FLOAT32_MAX,
     SEQUENCE_CHECKS,
@@ -197,16 +198,76 @@ def read_history_csv(path: str | Path) -> History:
     )
 
 
-def _run_search(experiment: Experiment, progress: bool) -> tuple[SearchResult, dict[str, float]]:
-    """Run the search; also time it: the first two calls compile (the initial set and the
-    first step), later steps show the steady throughput."""
+class Interrupted(KeyboardInterrupt):
+    """A run stopped by Ctrl-C or SIGTERM; `checkpoint` is where its search was saved (None
+    if it had not started searching)."""
+
+    def __init__(self, checkpoint: Path | None):
+        super().__init__()
+        self.checkpoint = checkpoint
+
+
+class _Checkpoints:
+    """The CLI's side of checkpointing: the driver's callback records each step
+    (`Progress`), and the state and history are saved to `path` every `every` seconds and
+    on demand (an interrupt)."""
+
+    def __init__(
+        self,
+        path: Path,
+        experiment: Experiment,
+        every: float | None,
+        resumed=None,
+        stop: Callable[[], bool] | None = None,
+    ):
+        self.path, self.experiment, self.every, self.stop = path, experiment, every, stop
+        serial = experiment.search["algorithm"] == "serial_search"
+        self.progress = Progress(seeds=experiment.search["runs"] if serial else None)
+        self.resumed = resumed
+        if resumed is not None:
+            state, history = resumed
+            self.progress.record(state, history)
+        self.last = time.monotonic()
+        self.saved = False
+
+    def __call__(self, state, part) -> None:
+        self.progress.record(state, part)
+        if self.stop is not None and self.stop():
+            raise KeyboardInterrupt  # between two steps: `run_experiment` saves and stops
+        if self.every is not None and time.monotonic() - self.last >= self.every:
+            self.save()
+
+    def save(self) -> None:
+        if self.progress.latest is None:
+            return
+        state, count = self.progress.latest
+        save_checkpoint(self.path, self.experiment, state, self.progress.history(count))
+        self.last = time.monotonic()
+        self.saved = True
+
+
+def _run_search(
+    experiment: Experiment, progress: bool, checkpoints: "_Checkpoints | None" = None
+) -> tuple[SearchResult, dict[str, float]]:
+    """Run the search (continuing `checkpoints.resumed`, a checkpoint's state and history,
+    if any, and recording every step in `checkpoints`); also time it: the first two calls
+    compile (the initial set and the first step), later steps show the steady
+    throughput."""
     s = experiment.search
     marks: list[tuple[float, int]] = []
     start = time.perf_counter()
+    resumed = None if checkpoints is None else checkpoints.resumed
+    carry_on = {} if resumed is None else {"state": resumed[0], "history": resumed[1]}
 
     def clock(state, part):
-        del state
         marks.append((time.perf_counter(), len(part)))
+        if checkpoints is not None:
+            checkpoints(state, part)
+
+    def clock_runs(state, parts):
+        marks.append((time.perf_counter(), sum(len(p) for p in parts)))
+        if checkpoints is not None:
+            checkpoints(state, parts)
 
     if s["algorithm"] == "serial_search":
         result = serial_search(
@@ -219,17 +280,22 @@ def _run_search(experiment: Experiment, progress: bool) -> tuple[SearchResult, d
             enrich=s["enrich"],
             progress=progress,
             # One History per run: the step's evaluations are all of theirs together.
-            callback=lambda state, parts: clock(state, range(sum(len(p) for p in parts))),
+            callback=clock_runs,
+            **carry_on,
         )
     elif s["algorithm"] == "evolve":
+        generations = s["generations"]
+        if resumed is not None:  # the generations it had left (the first one included)
+            generations -= 1 + int(resumed[0].generation)
         result = evolve(
             experiment.task,
             key=jr.key(experiment.seed),
-            generations=s["generations"],
+            generations=generations,
             size=s["size"],
             mutations=s["mutations"],
             progress=progress,
             callback=clock,
+            **carry_on,
         )
     else:
         result = parallel_hill_climb(
@@ -240,11 +306,12 @@ def _run_search(experiment: Experiment, progress: bool) -> tuple[SearchResult, d
             batch=s["batch"],
             progress=progress,
             callback=clock,
+            **carry_on,
         )
     end = time.perf_counter()
     timing = {
         "search_time_s": end - start,
-        "first_steps_s": marks[min(1, len(marks) - 1)][0] - start,
+        "first_steps_s": (marks[min(1, len(marks) - 1)][0] if marks else end) - start,
     }
     if len(marks) > 2:
         steady = sum(n for _, n in marks[2:])
@@ -326,6 +393,9 @@ def run_experiment(
     progress: bool = True,
     animation: bool | None = None,
     report: Callable[[str], None] | None = None,
+    checkpoint_every: float | None = None,
+    resume: str | Path | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> Path:
     """Run an experiment's search and write its results folder; return the folder.
 
@@ -345,21 +415,55 @@ def run_experiment(
     fitness, terms, check and wall time, and the check of the whole sequence) and
     `motion.gif` of the whole sequence (`concatenate_trajectories`). `report` is called with
     a short line as each stage starts and ends (the CLI prints them).
+
+    **Checkpoints** (a single search): with `checkpoint_every` (seconds), the search's whole
+    state and history so far are saved to `<directory>/<name>-<time>.checkpoint` that often
+    and when the run is interrupted (`KeyboardInterrupt`: Ctrl-C, or SIGTERM as the CLI
+    maps it), which then raises `Interrupted` naming the file. `resume` (that file, or the
+    directory holding it) continues such a search: the result is bitwise the uninterrupted
+    run's (best controller, fitness, history), and the checkpoint is removed once the
+    folder is complete. `stop`, asked after every step of a checkpointed search, stops it
+    there as an interrupt does (the CLI's signal handlers set it). See
+    `jaxmotion._cli.checkpoint` for the format.
+
+    **Raises:** `ConfigError` for a checkpoint that is truncated, of another config or
+    version, or for a multi-stage experiment (not checkpointed); `Interrupted`.
     """
     out_root = Path(directory if directory is not None else experiment.output["directory"])
     want_animation = experiment.output["animation"] if animation is None else animation
+    resumed, source = None, None
+    if resume is not None:
+        if experiment.stages:
+            raise ConfigError(
+                "--resume: a multi-stage ([[stage]]) run is not checkpointed; allowed: a "
+                "single search's checkpoint"
+            )
+        source = find_checkpoint(Path(resume), experiment)
+        resumed = load_checkpoint(source, experiment)
     final, tmp = new_folder(out_root, experiment.name)
+    checkpoints = None
+    if not experiment.stages and (checkpoint_every is not None or resumed is not None):
+        path = source if source is not None else out_root / f"{final.name}{SUFFIX}"
+        checkpoints = _Checkpoints(path, experiment, checkpoint_every, resumed, stop)
     try:
         if experiment.stages:
             _run_stages(experiment, tmp, progress, want_animation, report)
         else:
             started = time.perf_counter()
-            _search_and_write(experiment, tmp, progress, want_animation, started)
+            _search_and_write(experiment, tmp, progress, want_animation, started, checkpoints)
             (tmp / "config.toml").write_text(tomli_w.dumps(experiment.config))
         os.replace(tmp, final)
+    except KeyboardInterrupt:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if checkpoints is None:
+            raise
+        checkpoints.save()
+        raise Interrupted(checkpoints.path if checkpoints.saved else None) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    if checkpoints is not None:
+        checkpoints.path.unlink(missing_ok=True)
     return final
 
 
@@ -369,6 +473,7 @@ def _search_and_write(
     progress: bool,
     want_animation: bool,
     started: float,
+    checkpoints: _Checkpoints | None = None,
     *,
     stage: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], Trajectory]:
@@ -378,7 +483,7 @@ def _search_and_write(
     Returns the summary and the best motion."""
     from ..viz import animate, learning_curves, learning_plot
 
-    result, timing = _run_search(experiment, progress)
+    result, timing = _run_search(experiment, progress, checkpoints)
     search_seconds = timing["search_time_s"]
     task = experiment.task
     best = result.best
@@ -487,6 +592,7 @@ def start_where(stage: Experiment, previous: Trajectory | BodyState | None) -> E
         save_dt=task.save_dt,
         control_dt=task.control_dt,
         initial_state=previous,
+        robustness=task.robustness,
     )
     return dataclasses.replace(stage, task=started)
 

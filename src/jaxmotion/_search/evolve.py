@@ -16,6 +16,7 @@ from .hill_climb import (
     _STARTS,
     SearchResult,
     _check_positive_int,
+    _check_resume,
     _fold,
     _sample,
     finite_fitness,
@@ -266,6 +267,7 @@ def evolve(
     select: Callable[[EvolveState], Sequence[int] | None] | None = None,
     progress: bool = False,
     callback: Callable[[EvolveState, History], None] | None = None,
+    history: History | None = None,
 ) -> SearchResult:
     """The third paper's generational evolution on `task` (see `Evolve`); fitness is
     maximised.
@@ -288,12 +290,16 @@ def evolve(
     - `progress`: show a tqdm progress bar (off by default: the library does not print).
     - `callback`: called after every generation with the state and that generation's
         `History` (the first generation's too).
+    - `history`: with `state`, the `History` of every evaluation up to it (a checkpoint),
+        put before this call's in the result: continuing an interrupted evolution with the
+        generations it had left gives bitwise the uninterrupted result.
 
     **Returns:** a `SearchResult`; its history has every evaluation (`size` for the first
     generation, then `4 size / 5` per generation; survivors are not evaluated again), with
     `step` the generation that made it (0 for the first).
     """
-    generations = _check_positive_int("generations", generations)
+    if state is None or generations != 0:  # a continued state may have none left to make
+        generations = _check_positive_int("generations", generations)
     search = Evolve(size=size, mutations=mutations)
     parts = []
     todo = generations
@@ -308,6 +314,9 @@ def evolve(
             f"evolve: the state holds {state.fitness.shape[0]} controllers; allowed: size = "
             f"{search.size}"
         )
+    elif history is not None:
+        _check_resume(state, history, (search.size,), int(state.evaluations))
+        parts.append(history)
     bar = None
     if progress:
         from tqdm.auto import tqdm

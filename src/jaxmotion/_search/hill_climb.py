@@ -207,6 +207,8 @@ def parallel_hill_climb(
     batch: int = 1,
     progress: bool = False,
     callback: Callable[[HillClimbState, History], None] | None = None,
+    state: HillClimbState | None = None,
+    history: History | None = None,
 ) -> SearchResult:
     """Parallel hill climbing (first paper, Figure 4) on `task`; fitness is maximised.
 
@@ -221,15 +223,22 @@ def parallel_hill_climb(
         the paper's algorithm; larger batches use the machine far better.
     - `progress`: show a tqdm progress bar (off by default: the library does not print).
     - `callback`: called after every step with the state and that step's `History`.
+    - `state`, `history`: continue an interrupted search from a state its `callback` was
+        given and the `History` of every evaluation up to it (a checkpoint); with the same
+        settings the result is bitwise the uninterrupted search's. `key` is then not used.
 
     **Returns:** a `SearchResult`; its history has `size + evaluations` entries.
     """
     evaluations = _check_positive_int("evaluations", evaluations)
     search = ParallelHillClimb(size=size, batch=batch)
-    state, initial = search.init(task, key=key)
-    parts = [History(np.asarray(initial), np.zeros(search.size, dtype=np.int64))]
-    if callback is not None:
-        callback(state, parts[0])
+    if state is None:
+        state, initial = search.init(task, key=key)
+        parts = [History(np.asarray(initial), np.zeros(search.size, dtype=np.int64))]
+        if callback is not None:
+            callback(state, parts[0])
+    else:
+        _check_resume(state, history, (search.size,), int(state.evaluations))
+        parts = [history]
     steps = math.ceil(evaluations / search.batch)
     bar = None
     if progress:
@@ -237,8 +246,11 @@ def parallel_hill_climb(
 
         bar = tqdm(total=evaluations, unit="eval", desc="hill climbing")
     try:
-        done = 0
-        for k in range(steps):
+        first = int(state.step)
+        done = int(state.evaluations) - search.size
+        if bar is not None:
+            bar.update(done)
+        for k in range(first, steps):
             num_valid = min(search.batch, evaluations - done)
             state, fitness = search.step(task, state, num_valid)
             part = History(np.asarray(fitness)[:num_valid], np.full(num_valid, k + 1))
@@ -253,6 +265,23 @@ def parallel_hill_climb(
         if bar is not None:
             bar.close()
     return ranked_result(state, parts)
+
+
+def _check_resume(state, history, shape: tuple[int, ...], evaluations: int) -> None:
+    """A state and history to continue from: the search's shape, one entry of history per
+    evaluation the state counts."""
+    if history is None:
+        raise ValueError("continuing from a state needs the history up to it (history=...)")
+    if tuple(state.fitness.shape) != shape:
+        raise ValueError(
+            f"the state holds fitness of shape {tuple(state.fitness.shape)}; allowed: {shape} "
+            "(the search's settings)"
+        )
+    if len(history) != evaluations:
+        raise ValueError(
+            f"the history has {len(history)} evaluations and the state counts {evaluations}; "
+            "allowed: the history up to that state"
+        )
 
 
 def ranked_result(state, parts: list[History]) -> SearchResult:

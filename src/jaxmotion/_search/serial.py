@@ -16,7 +16,13 @@ from .._control.base import AbstractController
 from .._sim.compile import simulation_jit
 from .._sim.execution import batch_size, padded, share
 from .._task import Task
-from .hill_climb import _STARTS, SearchResult, _check_positive_int, finite_fitness
+from .hill_climb import (
+    _STARTS,
+    SearchResult,
+    _check_positive_int,
+    _check_resume,
+    finite_fitness,
+)
 from .history import History
 
 
@@ -373,6 +379,19 @@ def _split(state: SerialSearchState):
     return bests, best_fitness, tuple(state.seed(s) for s in range(seeds))
 
 
+def _rounds(state: SerialSearchState, history, seeds: int, climbers: int):
+    """The driver's evaluation rounds, `(seeds, climbers)` each, and their steps, from every
+    seed's `History` up to `state` (continuing a search)."""
+    if history is None or len(history) != seeds:
+        raise ValueError(
+            f"continuing from a state needs one History per seed ({seeds}); got "
+            f"{None if history is None else len(history)}"
+        )
+    _check_resume(state, history[0], (seeds, climbers), int(state.evaluations))
+    table = np.stack([h.fitness for h in history]).reshape(seeds, -1, climbers)
+    return list(table.transpose(1, 0, 2)), list(history[0].step[::climbers])
+
+
 @dataclass(frozen=True)
 class SerialSearchResult(SearchResult):
     """What `serial_search` returns: a `SearchResult` for the best seed, and one per seed.
@@ -405,6 +424,8 @@ def serial_search(
     enrich: int = 0,
     progress: bool = False,
     callback: Callable[[SerialSearchState, tuple[History, ...]], None] | None = None,
+    state: SerialSearchState | None = None,
+    history: tuple[History, ...] | None = None,
 ) -> SerialSearchResult:
     """Serial search (second paper, Figure 3) on `task`; fitness is maximised.
 
@@ -434,6 +455,9 @@ def serial_search(
     - `progress`: show a tqdm progress bar (off by default: the library does not print).
     - `callback`: called after the initial evaluations and after every generation with the
         state and those evaluations, one `History` per seed.
+    - `state`, `history`: continue an interrupted search from a state its `callback` was
+        given and every seed's `History` up to it (a checkpoint); with the same settings the
+        result is bitwise the uninterrupted search's. `key` is then not used.
 
     **Returns:** a `SerialSearchResult`; every seed's history has
     `climbers * (1 + enrich + generations)` entries: step 0 holds the initial climbers
@@ -447,16 +471,18 @@ def serial_search(
     generations = _check_positive_int("generations", generations)
     search = SerialSearch(climbers=climbers, reseed_every=reseed_every, enrich=enrich)
 
-    state, initial = search.init(task, key=key, seeds=seeds, seed_offset=seed_offset)
-    parts = list(np.asarray(initial))  # one (seeds, climbers) row per evaluation round
-    steps = [0] * len(parts)
-
     def report(state: SerialSearchState, rows: list[np.ndarray], g: int):
         if callback is not None:
             part = np.concatenate(rows, axis=1)  # (seeds, rounds * climbers)
             callback(state, tuple(History(f, np.full(f.shape[0], g)) for f in part))
 
-    report(state, parts, 0)
+    if state is None:
+        state, initial = search.init(task, key=key, seeds=seeds, seed_offset=seed_offset)
+        parts = list(np.asarray(initial))  # one (seeds, climbers) row per evaluation round
+        steps = [0] * len(parts)
+        report(state, parts, 0)
+    else:
+        parts, steps = _rounds(state, history, seeds, search.climbers)
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -464,7 +490,9 @@ def serial_search(
         bar = tqdm(total=generations, unit="gen", desc="serial search")
     try:
         best = float(np.max(parts))
-        for g in range(1, generations + 1):
+        if bar is not None:
+            bar.update(int(state.generation))
+        for g in range(int(state.generation) + 1, generations + 1):
             state, fitness = search.step(task, state)
             part = np.asarray(fitness)
             parts.append(part)

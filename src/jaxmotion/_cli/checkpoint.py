@@ -1,0 +1,248 @@
+"""Checkpoints of a running search: written atomically, read back only when they match.
+
+A checkpoint is one file, `<results directory>/<name>-<time>.checkpoint`:
+
+1. the line `jaxmotion-checkpoint 1`;
+2. one line of JSON, the header: the format, jaxmotion's, JAX's and equinox's versions, the
+   resolved config, the search's algorithm, how many evaluations it holds, and the shape and
+   dtype of every leaf of the payload, with the payload's length and SHA-256;
+3. the payload: the search state and the history so far, as equinox's leaf serialisation
+   (`equinox.tree_serialise_leaves`: one `numpy.save` per leaf, no pickle). PRNG keys are
+   stored as their raw key data and wrapped again when read.
+
+It is written to a temporary file in the same folder, flushed to disk and renamed over the
+old one (`os.replace`), so a kill at any moment leaves the previous checkpoint or the new
+one, never half of one. Reading checks the header, the length and the hash (a truncated or
+corrupted file is refused) and that the config and jaxmotion's version are the run's.
+"""
+
+import hashlib
+import io
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from importlib.metadata import version
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.random as jr
+import numpy as np
+
+from .._search.evolve import EvolveState
+from .._search.hill_climb import HillClimbState
+from .._search.history import History
+from .._search.serial import SerialSearchState
+from .config import ConfigError, Experiment
+
+MAGIC = b"jaxmotion-checkpoint 1\n"
+FORMAT = 1
+SUFFIX = ".checkpoint"
+
+
+def _versions() -> dict[str, str]:
+    return {
+        "jaxmotion": version("jaxmotion"),
+        "jax": jax.__version__,
+        "equinox": version("equinox"),
+    }
+
+
+def _search_config(experiment: Experiment) -> dict[str, Any]:
+    """What a checkpoint must share with the run that resumes it: the whole resolved config
+    but `[output]` (where and what to write does not change the search)."""
+    return json.loads(
+        json.dumps({k: v for k, v in experiment.config.items() if k != "output"}, sort_keys=True)
+    )
+
+
+def _is_key(a) -> bool:
+    return hasattr(a, "dtype") and jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key)
+
+
+@dataclass
+class Progress:
+    """What a search has done so far, as its driver's callback reports it: the latest state
+    and the `History` of each step up to it (one per seed for serial search). `latest` is set
+    in one assignment after the step's history is appended, so an interrupt at any moment
+    finds a consistent pair."""
+
+    seeds: int | None = None  # serial search: one History per seed
+    parts: list = field(default_factory=list)
+    latest: tuple[Any, int] | None = None
+
+    def record(self, state, part) -> None:
+        self.parts.append(part)
+        self.latest = (state, len(self.parts))
+
+    def history(self, count: int):
+        """The history of the first `count` steps (a tuple per seed for serial search)."""
+        parts = self.parts[:count]
+        if self.seeds is None:
+            return History.concatenate(parts)
+        return tuple(History.concatenate([p[s] for p in parts]) for s in range(self.seeds))
+
+
+def _payload(state, history) -> tuple[Any, list[bool]]:
+    """The pytree written: the state with its keys as raw data, and the history's arrays."""
+    leaves, treedef = jax.tree_util.tree_flatten(state)
+    keys = [_is_key(a) for a in leaves]
+    plain = [jr.key_data(a) if k else a for a, k in zip(leaves, keys, strict=True)]
+    histories = history if isinstance(history, tuple) else (history,)
+    arrays = [(h.fitness, h.step) for h in histories]
+    return (jax.tree_util.tree_unflatten(treedef, plain), arrays), keys
+
+
+def save_checkpoint(path: Path, experiment: Experiment, state, history) -> None:
+    """Write the search's `state` and `history` (a `History`, or one per seed) to `path`
+    atomically (a temporary file beside it, flushed, then `os.replace`)."""
+    tree, keys = _payload(state, history)
+    buffer = io.BytesIO()
+    eqx.tree_serialise_leaves(buffer, tree)
+    payload = buffer.getvalue()
+    leaves = jax.tree_util.tree_leaves(tree)
+    header = {
+        "format": FORMAT,
+        **_versions(),
+        "name": experiment.name,
+        "algorithm": experiment.search["algorithm"],
+        "config": _search_config(experiment),
+        "evaluations": int(
+            sum(len(h) for h in (history if isinstance(history, tuple) else (history,)))
+        ),
+        "saved": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "leaves": [[list(np.shape(a)), str(np.asarray(a).dtype)] for a in leaves],
+        "keys": [i for i, k in enumerate(keys) if k],
+        "key_impl": [str(jr.key_impl(a)) for a in jax.tree_util.tree_leaves(state) if _is_key(a)],
+        "payload_bytes": len(payload),
+        "payload_sha256": hashlib.sha256(payload).hexdigest(),
+    }
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with tmp.open("wb") as f:
+        f.write(MAGIC)
+        f.write(json.dumps(header).encode() + b"\n")
+        f.write(payload)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_header(path: Path) -> tuple[dict[str, Any], bytes]:
+    """A checkpoint's header and payload, checked for completeness.
+
+    **Raises:** `ConfigError` for a file that is not a checkpoint, or one truncated or
+    corrupted."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as e:
+        raise ConfigError(f"--resume {path}: cannot read it ({e.strerror or e})") from None
+    if not data.startswith(MAGIC):
+        raise ConfigError(f"--resume {path}: not a jaxmotion checkpoint")
+    end = data.find(b"\n", len(MAGIC))
+    try:
+        header = json.loads(data[len(MAGIC) : end])
+        size, digest = header["payload_bytes"], header["payload_sha256"]
+    except (ValueError, KeyError, TypeError):
+        raise ConfigError(f"--resume {path}: its header is damaged (truncated?)") from None
+    payload = data[end + 1 :]
+    if len(payload) != size or hashlib.sha256(payload).hexdigest() != digest:
+        raise ConfigError(
+            f"--resume {path}: truncated or corrupted ({len(payload)} of {size} payload bytes, "
+            "hash mismatch); allowed: a checkpoint written whole"
+        )
+    return header, payload
+
+
+def _template(experiment: Experiment, algorithm: str, motion: bool):
+    """A state of the experiment's search with placeholder leaves: its tree structure."""
+    task = experiment.task
+    population = eqx.filter_eval_shape(lambda: task.sample(1, key=jr.key(0)))
+    x = jax.ShapeDtypeStruct((), jnp.float32)
+    if algorithm == "serial_search":
+        return SerialSearchState(population, x, x, x, x, x if motion else None)
+    if algorithm == "evolve":
+        return EvolveState(population, x, x, x, x, x, x)
+    return HillClimbState(population, x, x, x, x)
+
+
+def load_checkpoint(path: Path, experiment: Experiment):
+    """The state and history of a checkpoint of `experiment`'s search.
+
+    **Raises:** `ConfigError` for a checkpoint that is truncated or corrupted, of another
+    config, of another jaxmotion version or checkpoint format, or that does not fit the
+    search's state."""
+    header, payload = read_header(path)
+    if header.get("format") != FORMAT or header.get("jaxmotion") != version("jaxmotion"):
+        raise ConfigError(
+            f"--resume {path}: written by jaxmotion {header.get('jaxmotion')!r} (checkpoint "
+            f"format {header.get('format')!r}); allowed: a checkpoint of this version "
+            f"({version('jaxmotion')}, format {FORMAT})"
+        )
+    mine = _search_config(experiment)
+    if header.get("config") != mine:
+        theirs = header.get("config") or {}
+        differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+        raise ConfigError(
+            f"--resume {path}: a checkpoint of another config (differs in: "
+            f"{', '.join(differ)}); allowed: a checkpoint of this very config and options"
+        )
+    algorithm = header["algorithm"]
+    shapes = header["leaves"]
+    seeds = experiment.search.get("runs") if algorithm == "serial_search" else None
+    histories = 1 if seeds is None else seeds
+    state_leaves = len(shapes) - 2 * histories
+    for motion in (False, True):
+        template = _template(experiment, algorithm, motion)
+        treedef = jax.tree_util.tree_structure(template)
+        if treedef.num_leaves == state_leaves:
+            break
+    else:
+        raise ConfigError(f"--resume {path}: its state does not fit this config's search")
+    state_like = [jax.ShapeDtypeStruct(tuple(s), jnp.dtype(d)) for s, d in shapes[:state_leaves]]
+    history_like = [np.empty(tuple(s), dtype=d) for s, d in shapes[state_leaves:]]
+    like = (
+        jax.tree_util.tree_unflatten(treedef, state_like),
+        [tuple(history_like[2 * i : 2 * i + 2]) for i in range(histories)],
+    )
+    try:
+        state, arrays = eqx.tree_deserialise_leaves(io.BytesIO(payload), like)
+    except (RuntimeError, ValueError, OSError) as e:
+        raise ConfigError(f"--resume {path}: cannot read its payload ({e})") from None
+    leaves, treedef = jax.tree_util.tree_flatten(state)
+    impls = iter(header.get("key_impl", []))
+    leaves = [
+        jr.wrap_key_data(a, impl=next(impls)) if i in header["keys"] else a
+        for i, a in enumerate(leaves)
+    ]
+    state = jax.tree_util.tree_unflatten(treedef, leaves)
+    history = tuple(History(f, s) for f, s in arrays)
+    return state, (history if seeds is not None else history[0])
+
+
+def find_checkpoint(path: Path, experiment: Experiment) -> Path:
+    """The checkpoint `--resume PATH` names: the file itself, or in a results directory the
+    newest `<name>-<time>.checkpoint` of this experiment.
+
+    **Raises:** `ConfigError` if there is none."""
+    path = Path(path)
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise ConfigError(f"--resume {path}: no such checkpoint file or results directory")
+    if (path / "summary.json").is_file():
+        raise ConfigError(
+            f"--resume {path}: a complete results folder (nothing to resume); allowed: a "
+            "checkpoint file or the results directory that holds one"
+        )
+    found = sorted(
+        path.glob(f"{experiment.name}-*{SUFFIX}"), key=lambda p: p.stat().st_mtime, reverse=True
+    )
+    if not found:
+        raise ConfigError(
+            f"--resume {path}: no checkpoint of {experiment.name!r} in it "
+            f"({experiment.name}-<time>{SUFFIX})"
+        )
+    return found[0]
