@@ -3,6 +3,7 @@ with every error naming the stage and the key; each stage's search starting exac
 the previous stage's best motion ended; the results folder written whole or not at all."""
 
 import argparse
+import dataclasses
 import json
 import tomllib
 
@@ -342,3 +343,17 @@ def test_cli_checks_a_multi_stage_config_and_names_the_stage_of_an_error(tmp_pat
     )
     assert out.returncode == 2 and not (tmp_path / "r").exists()
     assert '[[stage]] 2 ("turn"): [search] climbers = 0; allowed: an integer >= 1' in out.stderr
+
+
+def test_a_stage_started_elsewhere_keeps_everything_but_its_start():
+    """`start_where` changes a stage's task only in its initial state: its robustness (a
+    robust stage searched from where the previous ended is still robust), objective, space
+    and steps are the stage's own."""
+    raw = staged(WALK, {"name": "turn", "robustness": {"samples": 2, "velocity": 0.3}})
+    experiment = parse_config(raw)
+    stage = experiment.stages[1]
+    started = start_where(stage, stage.task.body.initial_state()).task
+    assert started.robustness == jm.Robustness(samples=2, velocity=0.3)
+    for field in dataclasses.fields(started):
+        if field.name != "initial_state":
+            assert getattr(started, field.name) is getattr(stage.task, field.name), field.name
