@@ -299,16 +299,24 @@ FLOAT32_OVERFLOW = r"allowed: .*magnitude at most 3.403e\+38"
         ),
         (
             minimal(search={"size": 4611686018427387904}),
-            r"\[search\] size = 4611686018427387904; allowed: an integer >= 1, at most 100000",
+            r"\[search\] size = 4611686018427387904; allowed: an integer >= 1, at most 10000",
         ),
         (
             minimal(search={"batch": 2**62}),
-            r"\[search\] batch = 4611686018427387904; allowed: an integer >= 1, at most 100000",
+            r"\[search\] batch = 4611686018427387904; allowed: an integer >= 1, at most 10000",
         ),
         (
             minimal(search={"algorithm": "serial_search", "climbers": 1000, "runs": 1000}),
             r"\[search\] runs = 1000 x climbers = 1000 = 1000000 controllers in one call; "
-            r"allowed: at most 100000",
+            r"allowed: at most 10000",
+        ),
+        (
+            minimal(
+                simulation={"duration": 100.0, "save_dt": 0.01},
+                search={"batch": 2000},
+            ),
+            r"\[search\] batch = 2000 = 2000 controllers in one call, each saving 10001 "
+            r"samples .*: 2e\+07; allowed: at most 1e\+07 samples in one call",
         ),
         (
             minimal(simulation={"duration": 5.0, "dt": 1e-12}),

@@ -38,13 +38,14 @@ infinite inside the first compiled call."""
 # Upper bounds on the sizes a config may ask for, checked before anything compiles: far
 # beyond any shipped config, and far below what overflows XLA's static shapes (a search set
 # of 2**62 aborted the process inside XLA, leaving a partial results folder behind).
-MAX_BATCH = 100_000  # controllers evaluated in one call (search set, batch, climbers x runs)
+MAX_BATCH = 10_000  # controllers in a search set or one call (batch, climbers x runs)
 MAX_EVALUATIONS = 1_000_000_000
 MAX_GENERATIONS = 100_000_000
 MAX_RULES = 1_000  # regimes, rules of a BSR controller
 MAX_MASSES = 200  # a spring net's masses (n (n - 1) / 2 springs)
 MAX_STEPS = 10_000_000  # fixed steps of one simulation (e.g. 10,000 s at dt = 1 ms)
 MAX_SAVES = 100_000  # saved samples of one simulation (what the objectives see)
+MAX_SAVED = 10_000_000  # saved samples of one call: controllers in it x samples of each
 MAX_SAMPLES = 1_000  # random starts per evaluation (robustness), mutations per offspring
 
 
@@ -640,6 +641,29 @@ def _check_steps(simulation: Mapping[str, Any]) -> None:
         )
 
 
+def _check_width(search: Mapping[str, Any], simulation: Mapping[str, Any]) -> None:
+    """At most `MAX_BATCH` controllers and `MAX_SAVED` saved samples in one evaluation call
+    (its trajectories are held in memory at once)."""
+    if search["algorithm"] == "serial_search":
+        width = search["runs"] * search["climbers"]
+        what = f"runs = {search['runs']} x climbers = {search['climbers']}"
+    elif search["algorithm"] == "evolve":
+        width, what = search["size"] * 4 // 5, f"4/5 of size = {search['size']}"
+    else:
+        width, what = search["batch"], f"batch = {search['batch']}"
+    if width > MAX_BATCH:
+        raise ConfigError(
+            f"[search] {what} = {width} controllers in one call; allowed: at most {MAX_BATCH}"
+        )
+    samples = round(simulation["duration"] / simulation["save_dt"]) + 1
+    if width * samples > MAX_SAVED:
+        raise ConfigError(
+            f"[search] {what} = {width} controllers in one call, each saving {samples} samples "
+            f"([simulation] duration / save_dt + 1): {width * samples:.4g}; allowed: at most "
+            f"{MAX_SAVED:.4g} samples in one call (a smaller batch or a longer save_dt)"
+        )
+
+
 def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
     head = _top_level(raw, name)
     resolved: dict[str, Any] = dict(head)
@@ -664,13 +688,7 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
     _check_steps(simulation_cfg)
     search_table = raw.get("search", {})
     search_cfg = _read_section("[search]", search_table, _search_schema(search_table))
-    if search_cfg["algorithm"] == "serial_search":
-        width = search_cfg["runs"] * search_cfg["climbers"]
-        if width > MAX_BATCH:
-            raise ConfigError(
-                f"[search] runs = {search_cfg['runs']} x climbers = {search_cfg['climbers']} = "
-                f"{width} controllers in one call; allowed: at most {MAX_BATCH}"
-            )
+    _check_width(search_cfg, simulation_cfg)
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
     robust_cfg = None
     if "robustness" in raw:
