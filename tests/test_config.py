@@ -182,6 +182,18 @@ def test_run_writes_the_whole_results_folder_and_it_loads_back(tmp_path):
     replay = float(loaded.task.fitness(loaded.task.simulate(controller)))
     # The saved controller (through JSON) replays to exactly the fitness the search saw.
     assert replay == summary["best_fitness"] == summary["replay_fitness"]
+    # A saved controller that does not fit its config (a regime dropped), or is not JSON,
+    # is refused naming the file, before anything compiles.
+    saved = folder / "best_controller.json"
+    data = json.loads(saved.read_text())
+    for name in ("times", "reflexes", "coefficients"):
+        data["params"][name] = data["params"][name][:-1]
+    saved.write_text(json.dumps(data))
+    with pytest.raises(ConfigError, match=r"best_controller.json: the controller does not fit"):
+        load_result(folder)
+    saved.write_text('{"family": "regimes", "params": {')
+    with pytest.raises(ConfigError, match=r"best_controller.json: not valid JSON"):
+        load_result(folder)
 
 
 def test_failed_or_interrupted_runs_leave_nothing_behind(tmp_path, monkeypatch):
