@@ -159,7 +159,7 @@ def _kill_mid_search(
 
 
 CLI_SEARCHES = {
-    "parallel_hill_climb": {"evaluations": 6000, "size": 16, "batch": 16},
+    "parallel_hill_climb": {"evaluations": 4000, "size": 16, "batch": 16},
     "serial_search": {"climbers": 8, "runs": 2, "generations": 250, "reseed_every": 20},
     "evolve": {"generations": 120, "size": 20, "mutations": 2},
 }

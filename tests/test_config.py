@@ -435,9 +435,12 @@ def test_stale_partial_folders_of_dead_runs_are_cleaned_and_live_ones_kept(tmp_p
     for folder in (stale, older, live, kept):
         folder.mkdir()
         (folder / "history.csv").write_text("evaluation\n")
+    # A checkpoint killed while being written (its temporary file), and a whole one.
+    (tmp_path / f".run-20260101-000000.checkpoint.{dead_pid}.tmp").write_bytes(b"half")
+    (tmp_path / "run-20260101-000000.checkpoint").write_bytes(b"whole")
     final, tmp = new_folder(tmp_path, "next")
     names = {p.name for p in tmp_path.iterdir()}
-    assert names == {live.name, kept.name, tmp.name}
+    assert names == {live.name, kept.name, tmp.name, "run-20260101-000000.checkpoint"}
     assert tmp.name.startswith(f".{final.name}.pid{os.getpid()}.")
 
 

@@ -183,13 +183,23 @@ def load_checkpoint(path: Path, experiment: Experiment):
         )
     mine = _search_config(experiment)
     if header.get("config") != mine:
-        theirs = header.get("config") or {}
+        theirs = header.get("config") if isinstance(header.get("config"), dict) else {}
         differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
         raise ConfigError(
             f"--resume {path}: a checkpoint of another config (differs in: "
             f"{', '.join(differ)}); allowed: a checkpoint of this very config and options"
         )
-    algorithm = header["algorithm"]
+    try:
+        return _restore(experiment, header, payload)
+    except (KeyError, TypeError, ValueError, RuntimeError, OSError, StopIteration) as e:
+        raise ConfigError(
+            f"--resume {path}: its contents do not fit this config's search ({e})"
+        ) from None
+
+
+def _restore(experiment: Experiment, header: dict[str, Any], payload: bytes):
+    """The state and history of a checkpoint whose header checked out."""
+    algorithm = experiment.search["algorithm"]
     shapes = header["leaves"]
     seeds = experiment.search.get("runs") if algorithm == "serial_search" else None
     histories = 1 if seeds is None else seeds
@@ -200,17 +210,14 @@ def load_checkpoint(path: Path, experiment: Experiment):
         if treedef.num_leaves == state_leaves:
             break
     else:
-        raise ConfigError(f"--resume {path}: its state does not fit this config's search")
+        raise ValueError(f"{len(shapes)} leaves")
     state_like = [jax.ShapeDtypeStruct(tuple(s), jnp.dtype(d)) for s, d in shapes[:state_leaves]]
     history_like = [np.empty(tuple(s), dtype=d) for s, d in shapes[state_leaves:]]
     like = (
         jax.tree_util.tree_unflatten(treedef, state_like),
         [tuple(history_like[2 * i : 2 * i + 2]) for i in range(histories)],
     )
-    try:
-        state, arrays = eqx.tree_deserialise_leaves(io.BytesIO(payload), like)
-    except (RuntimeError, ValueError, OSError) as e:
-        raise ConfigError(f"--resume {path}: cannot read its payload ({e})") from None
+    state, arrays = eqx.tree_deserialise_leaves(io.BytesIO(payload), like)
     leaves, treedef = jax.tree_util.tree_flatten(state)
     impls = iter(header.get("key_impl", []))
     leaves = [

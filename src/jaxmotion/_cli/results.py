@@ -320,6 +320,7 @@ def _run_search(
 
 
 _PARTIAL = re.compile(r"^\..+\.pid(\d+)\.[^.]+\.partial$")
+_HALF_CHECKPOINT = re.compile(r"^\..+\.checkpoint\.(\d+)\.tmp$")
 
 
 def _alive(pid: int) -> bool:
@@ -333,14 +334,22 @@ def _alive(pid: int) -> bool:
 
 
 def clean_partial_folders(out_root: Path) -> list[Path]:
-    """Remove the temporary folders (`.<name>-<time>.pid<PID>.<random>.partial/`) that runs
-    killed before they could clean up (SIGKILL, a crash inside XLA) left in `out_root`:
-    those whose process is gone, and those of the older naming without a process id. A
-    running process's folder is kept. Returns the folders removed."""
+    """Remove the temporary folders (`.<name>-<time>.pid<PID>.<random>.partial/`) and
+    half-written checkpoints (`.<name>-<time>.checkpoint.<PID>.tmp`) that runs killed before
+    they could clean up (SIGKILL, a crash inside XLA) left in `out_root`: those whose
+    process is gone, and folders of the older naming without a process id. A running
+    process's are kept. Returns the paths removed."""
     removed = []
     if not out_root.is_dir():
         return removed
     for path in out_root.iterdir():
+        half = _HALF_CHECKPOINT.match(path.name)
+        if half is not None:
+            # A checkpoint being written when its process was killed (`save_checkpoint`).
+            if not _alive(int(half.group(1))):
+                path.unlink(missing_ok=True)
+                removed.append(path)
+            continue
         if not (path.name.startswith(".") and path.name.endswith(".partial")):
             continue
         match = _PARTIAL.match(path.name)
