@@ -507,6 +507,11 @@ def test_cli_refuses_bad_options_and_folders_with_exit_code_2(tmp_path, monkeypa
         (("run", config, "--evaluations", "0", "--out", out), "--evaluations = 0; allowed"),
         (("run", config, "--batch", str(2**62), "--out", out), "--batch = 4611686018427387904"),
         (("run", config, "--out", str(tmp_path / "file")), "--out = '" + str(tmp_path / "file")),
+        (("compare", config, "--seeds", "0,-1", "--out", out), "--seeds = '0,-1'; allowed"),
+        (("compare", config, "--learning-rate", "inf", "--out", out), "--learning-rate = inf"),
+        (("compare", config, "--fraction", "1.5", "--out", out), "--fraction = 1.5; allowed"),
+        (("run", config, "--checkpoint-every", "nan", "--out", out), "--checkpoint-every = nan"),
+        (("run", config, "--resume", str(tmp_path / "none"), "--out", out), "no such checkpoint"),
         (("replay", str(tmp_path)), "not a results folder (no config.toml"),
         (("replay", str(tmp_path / "nothing")), "not a results folder (no such folder)"),
     ]

@@ -475,6 +475,10 @@ def _compare(args) -> int:
         raise ConfigError(
             f"--seeds = {args.seeds!r}; allowed: comma-separated integers, e.g. 0,1,2"
         ) from None
+    if len(seeds) > 1000 or not all(0 <= s < 2**32 for s in seeds):
+        raise ConfigError(
+            f"--seeds = {args.seeds!r}; allowed: at most 1000 integers, each from 0 to 2**32 - 1"
+        )
     experiment = _load(
         Path(args.config),
         argparse.Namespace(seed=None, evaluations=args.evaluations, batch=args.batch),
@@ -525,6 +529,14 @@ def _check_options(args) -> None:
         if value is not None and not lo <= value <= hi:
             option = "--" + name.replace("_", "-")
             raise ConfigError(f"{option} = {value}; allowed: an integer from {lo} to {hi}")
+    for name in ("learning_rate", "gradient_cost"):
+        value = getattr(args, name, None)
+        if value is not None and not (math.isfinite(value) and 0 < value <= 1e30):
+            option = "--" + name.replace("_", "-")
+            raise ConfigError(f"{option} = {value}; allowed: a number > 0 (finite, <= 1e30)")
+    fraction = getattr(args, "fraction", None)
+    if fraction is not None and not 0 < fraction < 1:
+        raise ConfigError(f"--fraction = {fraction}; allowed: a number with 0 < fraction < 1")
     every = getattr(args, "checkpoint_every", None)
     if every is not None and not (math.isfinite(every) and every > 0):
         raise ConfigError(
