@@ -14,7 +14,13 @@ from pathlib import Path
 
 import pytest
 
-from jaxmotion.experiment import ConfigError, default_config_path, parse_config, run_experiment
+from jaxmotion.experiment import (
+    ConfigError,
+    Interrupted,
+    default_config_path,
+    parse_config,
+    run_experiment,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -64,8 +70,6 @@ def interrupt_after(monkeypatch, steps: int):
 
 @pytest.mark.parametrize("algorithm", ["serial_search", "evolve"])
 def test_resume_after_ctrl_c_is_bitwise_the_uninterrupted_run(tmp_path, monkeypatch, algorithm):
-    from jaxmotion._cli.results import Interrupted
-
     reference = run_experiment(tiny(algorithm, tmp_path / "a"), progress=False)
     experiment = tiny(algorithm, tmp_path / "b")
     steps = random.Random(algorithm).randint(2, 5)  # a step inside the search
@@ -83,7 +87,6 @@ def test_resume_after_ctrl_c_is_bitwise_the_uninterrupted_run(tmp_path, monkeypa
 
 def test_truncated_foreign_and_other_version_checkpoints_are_refused(tmp_path, monkeypatch):
     from jaxmotion._cli.checkpoint import MAGIC
-    from jaxmotion._cli.results import Interrupted
 
     experiment = tiny("evolve", tmp_path)
     with monkeypatch.context() as patch:

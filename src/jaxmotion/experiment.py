@@ -18,6 +18,7 @@ from ._cli.config import Experiment as Experiment
 from ._cli.config import default_config_path as default_config_path
 from ._cli.config import load_config as load_config
 from ._cli.config import parse_config as parse_config
+from ._cli.results import Interrupted as Interrupted
 from ._cli.results import controller_from_dict as controller_from_dict
 from ._cli.results import controller_to_dict as controller_to_dict
 from ._cli.results import load_result as load_result
@@ -34,6 +35,7 @@ __all__ = [
     "ComposeConfig",
     "ConfigError",
     "Experiment",
+    "Interrupted",
     "check_compose_config",
     "concatenate_trajectories",
     "controller_from_dict",
