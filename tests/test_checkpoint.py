@@ -212,3 +212,37 @@ def test_cli_killed_with_sigkill_then_stopped_resumes_bitwise(tmp_path, algorith
     folder = Path(out.strip().splitlines()[-1])
     assert results(folder) == expected
     assert sorted(p.name for p in b.iterdir()) == [folder.name]
+
+
+def stages_results(folder: Path) -> dict:
+    """Every stage's `results` (a multi-stage folder)."""
+    return {p.name: results(p) for p in sorted(folder.glob("stage-*"))}
+
+
+@pytest.mark.parametrize("steps", [3, 13])  # in the first stage's search; in the second's
+def test_a_multi_stage_run_resumes_bitwise_from_any_stage(tmp_path, monkeypatch, steps):
+    """A [[stage]] run's checkpoint holds each stage begun: a finished stage is continued
+    from its last state (no step left), the one in progress from where it stopped."""
+
+    def staged(directory):
+        raw = tomllib.loads(default_config_path().read_text())
+        raw["simulation"]["duration"] = 0.3
+        del raw["search"]
+        raw["output"] = {"directory": str(directory), "animation": False}
+        hill_climb = {"algorithm": "parallel_hill_climb", **SEARCHES["parallel_hill_climb"]}
+        raw["stage"] = [
+            {"name": "first", "search": hill_climb},  # the initial set, 10 steps: 11 reports
+            {"name": "second", "search": {"algorithm": "evolve", **SEARCHES["evolve"]}},
+        ]
+        return parse_config(raw, name="tiny-stages")
+
+    reference = run_experiment(staged(tmp_path / "a"), progress=False)
+    experiment = staged(tmp_path / "b")
+    with monkeypatch.context() as patch:
+        interrupt_after(patch, steps)
+        with pytest.raises(Interrupted) as stopped:
+            run_experiment(experiment, progress=False, checkpoint_every=3600.0)
+    assert [p.name for p in (tmp_path / "b").iterdir()] == [stopped.value.checkpoint.name]
+    folder = run_experiment(experiment, progress=False, resume=stopped.value.checkpoint)
+    assert stages_results(folder) == stages_results(reference)
+    assert len(stages_results(folder)) == 2

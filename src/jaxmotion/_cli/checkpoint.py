@@ -4,9 +4,10 @@ A checkpoint is one file, `<results directory>/<name>-<time>.checkpoint`:
 
 1. the line `jaxmotion-checkpoint 1`;
 2. one line of JSON, the header: the format, jaxmotion's, JAX's and equinox's versions, the
-   resolved config, the search's algorithm, how many evaluations it holds, and the shape and
-   dtype of every leaf of the payload, with the payload's length and SHA-256;
-3. the payload: the search state and the history so far, as equinox's leaf serialisation
+   resolved config, and for each search begun (a multi-stage run's stages so far) its
+   algorithm, evaluations, the shape and dtype of every leaf and its bytes of the payload;
+   the payload's length and SHA-256;
+3. the payload: each search's state and history so far, as equinox's leaf serialisation
    (`equinox.tree_serialise_leaves`: one `numpy.save` per leaf, no pickle). PRNG keys are
    stored as their raw key data and wrapped again when read.
 
@@ -96,27 +97,45 @@ def _payload(state, history) -> tuple[Any, list[bool]]:
     return (jax.tree_util.tree_unflatten(treedef, plain), arrays), keys
 
 
-def save_checkpoint(path: Path, experiment: Experiment, state, history) -> None:
-    """Write the search's `state` and `history` (a `History`, or one per seed) to `path`
-    atomically (a temporary file beside it, flushed, then `os.replace`)."""
-    tree, keys = _payload(state, history)
-    buffer = io.BytesIO()
-    eqx.tree_serialise_leaves(buffer, tree)
-    payload = buffer.getvalue()
-    leaves = jax.tree_util.tree_leaves(tree)
+def _searches(experiment: Experiment) -> tuple[Experiment, ...]:
+    """The single-search experiments a run is made of: its stages, or itself."""
+    return experiment.stages or (experiment,)
+
+
+def save_checkpoint(path: Path, experiment: Experiment, searches) -> None:
+    """Write `searches`, a `(state, history)` pair for each search the run has begun (a
+    single search: one; a multi-stage run: each stage so far, the last one in progress;
+    `history` a `History`, or one per seed), to `path` atomically (a temporary file beside
+    it, flushed, then `os.replace`)."""
+    payload, parts = b"", []
+    for (state, history), search in zip(searches, _searches(experiment), strict=False):
+        tree, keys = _payload(state, history)
+        buffer = io.BytesIO()
+        eqx.tree_serialise_leaves(buffer, tree)
+        histories = history if isinstance(history, tuple) else (history,)
+        parts.append(
+            {
+                "algorithm": search.search["algorithm"],
+                "evaluations": int(sum(len(h) for h in histories)),
+                "leaves": [
+                    [list(np.shape(a)), str(np.asarray(a).dtype)]
+                    for a in jax.tree_util.tree_leaves(tree)
+                ],
+                "keys": [i for i, k in enumerate(keys) if k],
+                "key_impl": [
+                    str(jr.key_impl(a)) for a in jax.tree_util.tree_leaves(state) if _is_key(a)
+                ],
+                "bytes": len(buffer.getvalue()),
+            }
+        )
+        payload += buffer.getvalue()
     header = {
         "format": FORMAT,
         **_versions(),
         "name": experiment.name,
-        "algorithm": experiment.search["algorithm"],
         "config": _search_config(experiment),
-        "evaluations": int(
-            sum(len(h) for h in (history if isinstance(history, tuple) else (history,)))
-        ),
         "saved": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "leaves": [[list(np.shape(a)), str(np.asarray(a).dtype)] for a in leaves],
-        "keys": [i for i, k in enumerate(keys) if k],
-        "key_impl": [str(jr.key_impl(a)) for a in jax.tree_util.tree_leaves(state) if _is_key(a)],
+        "searches": parts,
         "payload_bytes": len(payload),
         "payload_sha256": hashlib.sha256(payload).hexdigest(),
     }
@@ -168,8 +187,9 @@ def _template(experiment: Experiment, algorithm: str, motion: bool):
     return HillClimbState(population, x, x, x, x)
 
 
-def load_checkpoint(path: Path, experiment: Experiment):
-    """The state and history of a checkpoint of `experiment`'s search.
+def load_checkpoint(path: Path, experiment: Experiment) -> list[tuple[Any, Any]]:
+    """The `(state, history)` of each search a checkpoint of `experiment` holds (a single
+    search: one; a multi-stage run: each stage begun, in order; see `save_checkpoint`).
 
     **Raises:** `ConfigError` for a checkpoint that is truncated or corrupted, of another
     config, of another jaxmotion version or checkpoint format, or that does not fit the
@@ -190,7 +210,13 @@ def load_checkpoint(path: Path, experiment: Experiment):
             f"{', '.join(differ)}); allowed: a checkpoint of this very config and options"
         )
     try:
-        return _restore(experiment, header, payload)
+        out, start = [], 0
+        for part, search in zip(header["searches"], _searches(experiment), strict=False):
+            out.append(_restore(search, part, payload[start : start + part["bytes"]]))
+            start += part["bytes"]
+        if not out or len(out) > len(_searches(experiment)) or start != len(payload):
+            raise ValueError(f"{len(header['searches'])} searches")
+        return out
     except (KeyError, TypeError, ValueError, RuntimeError, OSError, StopIteration) as e:
         raise ConfigError(
             f"--resume {path}: its contents do not fit this config's search ({e})"
@@ -198,8 +224,11 @@ def load_checkpoint(path: Path, experiment: Experiment):
 
 
 def _restore(experiment: Experiment, header: dict[str, Any], payload: bytes):
-    """The state and history of a checkpoint whose header checked out."""
+    """The state and history of one search of a checkpoint whose header checked out
+    (`header`: that search's part of it)."""
     algorithm = experiment.search["algorithm"]
+    if header["algorithm"] != algorithm:
+        raise ValueError(f"a {header['algorithm']} search")
     shapes = header["leaves"]
     seeds = experiment.search.get("runs") if algorithm == "serial_search" else None
     histories = 1 if seeds is None else seeds

@@ -26,7 +26,7 @@ row per evaluation), learning_plot.png, motion.gif and summary.json. Fitness is 
 A config with [[stage]] tables runs one search per stage, each starting where the previous
 stage's best motion ended; its folder holds a subfolder per stage (stage-1-NAME/, ...), the
 whole sequence's motion.gif and a summary.json of every stage.
-A single search saves a checkpoint every --checkpoint-every seconds and on Ctrl-C or SIGTERM;
+A run saves a checkpoint every --checkpoint-every seconds and on Ctrl-C or SIGTERM;
 `run CONFIG.toml --resume CHECKPOINT` continues it to the very result of an uninterrupted run.
 """
 
@@ -308,7 +308,7 @@ def _run(path: Path, args) -> int:
         stop.set()
         signal.signal(signum, _terminate)
 
-    if main_thread and not experiment.stages:
+    if main_thread:
         previous = {s: signal.signal(s, request) for s in handled}
     try:
         folder = run_experiment(
@@ -317,7 +317,7 @@ def _run(path: Path, args) -> int:
             progress=not args.quiet,
             animation=False if args.no_animation else None,
             report=say,
-            checkpoint_every=None if experiment.stages else args.checkpoint_every,
+            checkpoint_every=args.checkpoint_every,
             resume=args.resume,
             stop=stop.is_set,
         )

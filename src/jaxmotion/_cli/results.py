@@ -208,29 +208,42 @@ class Interrupted(KeyboardInterrupt):
 
 
 class _Checkpoints:
-    """The CLI's side of checkpointing: the driver's callback records each step
-    (`Progress`), and the state and history are saved to `path` every `every` seconds and
-    on demand (an interrupt)."""
+    """The CLI's side of checkpointing: the driver's callback records each step of the
+    search in progress (`Progress`), and the searches so far (a multi-stage run's finished
+    stages, then the one in progress) are saved to `path` every `every` seconds and on
+    demand (an interrupt). `resumed`: the `(state, history)` of each search a checkpoint
+    holds; `begin` hands the next one to its search."""
 
     def __init__(
         self,
         path: Path,
         experiment: Experiment,
         every: float | None,
-        resumed=None,
+        resumed: list | None = None,
         stop: Callable[[], bool] | None = None,
     ):
         self.path, self.experiment, self.every, self.stop = path, experiment, every, stop
-        serial = experiment.search["algorithm"] == "serial_search"
-        self.progress = Progress(seeds=experiment.search["runs"] if serial else None)
-        self.resumed = resumed
-        if resumed is not None:
-            state, history = resumed
-            self.progress.record(state, history)
+        self.pending = list(resumed or [])
+        self.done: list[tuple[Any, Any]] = []
+        self.progress: Progress | None = None
+        self.resumed = None
         self.last = time.monotonic()
         self.saved = False
 
+    def begin(self, search: Experiment) -> None:
+        """Start recording the next search (`search`: the single-search experiment it runs);
+        `resumed` is then its state and history from the checkpoint, if it holds them."""
+        if self.progress is not None and self.progress.latest is not None:
+            state, count = self.progress.latest
+            self.done.append((state, self.progress.history(count)))
+        serial = search.search["algorithm"] == "serial_search"
+        self.progress = Progress(seeds=search.search["runs"] if serial else None)
+        self.resumed = self.pending.pop(0) if self.pending else None
+        if self.resumed is not None:
+            self.progress.record(*self.resumed)
+
     def __call__(self, state, part) -> None:
+        assert self.progress is not None
         self.progress.record(state, part)
         if self.stop is not None and self.stop():
             raise KeyboardInterrupt  # between two steps: `run_experiment` saves and stops
@@ -238,10 +251,13 @@ class _Checkpoints:
             self.save()
 
     def save(self) -> None:
-        if self.progress.latest is None:
+        searches = list(self.done)
+        if self.progress is not None and self.progress.latest is not None:
+            state, count = self.progress.latest
+            searches.append((state, self.progress.history(count)))
+        if not searches:
             return
-        state, count = self.progress.latest
-        save_checkpoint(self.path, self.experiment, state, self.progress.history(count))
+        save_checkpoint(self.path, self.experiment, searches)
         self.last = time.monotonic()
         self.saved = True
 
@@ -425,40 +441,38 @@ def run_experiment(
     `motion.gif` of the whole sequence (`concatenate_trajectories`). `report` is called with
     a short line as each stage starts and ends (the CLI prints them).
 
-    **Checkpoints** (a single search): with `checkpoint_every` (seconds), the search's whole
-    state and history so far are saved to `<directory>/<name>-<time>.checkpoint` that often
-    and when the run is interrupted (`KeyboardInterrupt`: Ctrl-C, or SIGTERM as the CLI
-    maps it), which then raises `Interrupted` naming the file. `resume` (that file, or the
-    directory holding it) continues such a search: the result is bitwise the uninterrupted
-    run's (best controller, fitness, history), and the checkpoint is removed once the
-    folder is complete. `stop`, asked after every step of a checkpointed search, stops it
-    there as an interrupt does (the CLI's signal handlers set it). See
-    `jaxmotion._cli.checkpoint` for the format.
+    **Checkpoints**: with `checkpoint_every` (seconds), the search's whole state and history
+    so far (a multi-stage run: every stage's so far) are saved to
+    `<directory>/<name>-<time>.checkpoint` that often and when the run is interrupted
+    (`KeyboardInterrupt`: Ctrl-C, or SIGTERM as the CLI maps it), which then raises
+    `Interrupted` naming the file. `resume` (that file, or the directory holding it)
+    continues such a run: the result is bitwise the uninterrupted run's (best controllers,
+    fitness, histories), and the checkpoint is removed once the folder is complete.
+    `stop`, asked after every step of a checkpointed search, stops it there as an
+    interrupt does (the CLI's signal handlers set it). See `jaxmotion._cli.checkpoint` for
+    the format.
 
     **Raises:** `ConfigError` for a checkpoint that is truncated, of another config or
-    version, or for a multi-stage experiment (not checkpointed); `Interrupted`.
+    version; `Interrupted`.
     """
     out_root = Path(directory if directory is not None else experiment.output["directory"])
     want_animation = experiment.output["animation"] if animation is None else animation
     resumed, source = None, None
     if resume is not None:
-        if experiment.stages:
-            raise ConfigError(
-                "--resume: a multi-stage ([[stage]]) run is not checkpointed; allowed: a "
-                "single search's checkpoint"
-            )
         source = find_checkpoint(Path(resume), experiment)
         resumed = load_checkpoint(source, experiment)
     final, tmp = new_folder(out_root, experiment.name)
     checkpoints = None
-    if not experiment.stages and (checkpoint_every is not None or resumed is not None):
+    if checkpoint_every is not None or resumed is not None:
         path = source if source is not None else out_root / f"{final.name}{SUFFIX}"
         checkpoints = _Checkpoints(path, experiment, checkpoint_every, resumed, stop)
     try:
         if experiment.stages:
-            _run_stages(experiment, tmp, progress, want_animation, report)
+            _run_stages(experiment, tmp, progress, want_animation, report, checkpoints)
         else:
             started = time.perf_counter()
+            if checkpoints is not None:
+                checkpoints.begin(experiment)
             _search_and_write(experiment, tmp, progress, want_animation, started, checkpoints)
             (tmp / "config.toml").write_text(tomli_w.dumps(experiment.config))
         os.replace(tmp, final)
@@ -619,8 +633,11 @@ def _run_stages(
     progress: bool,
     want_animation: bool,
     report: Callable[[str], None] | None,
+    checkpoints: _Checkpoints | None = None,
 ) -> None:
-    """A multi-stage experiment's searches, one after another (see `run_experiment`)."""
+    """A multi-stage experiment's searches, one after another (see `run_experiment`; a
+    stage that a checkpoint holds as finished is continued from its last state, so its
+    search makes no step and its results are written as they were)."""
     from ..viz import animate
 
     say = report or (lambda line: None)
@@ -636,12 +653,15 @@ def _run_stages(
         say(f"{label}: {search_plan(stage.search)}, seed {stage.seed}{start}")
         sub = folder / stage_folder(number, stage.name)
         sub.mkdir()
+        if checkpoints is not None:
+            checkpoints.begin(stage)
         summary, trajectory = _search_and_write(
             stage,
             sub,
             progress,
             want_animation,
             time.perf_counter(),
+            checkpoints,
             stage={"stage": number, "starts_after": previous_name},
         )
         check = summary["check"]
