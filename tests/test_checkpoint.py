@@ -246,3 +246,8 @@ def test_a_multi_stage_run_resumes_bitwise_from_any_stage(tmp_path, monkeypatch,
     folder = run_experiment(experiment, progress=False, resume=stopped.value.checkpoint)
     assert stages_results(folder) == stages_results(reference)
     assert len(stages_results(folder)) == 2
+    # Each stage's non-finite evaluations are counted in the run's summary.
+    summary = json.loads((folder / "summary.json").read_text())
+    for entry in summary["stages"]:
+        history = (folder / entry["folder"] / "history.csv").read_text()
+        assert entry["nonfinite_evaluations"] == history.count(",-inf,")

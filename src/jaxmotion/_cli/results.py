@@ -674,6 +674,11 @@ def _run_stages(
         say(
             f"{label}: best fitness {_short(summary['best_fitness'])} ({terms}) after "
             f"{summary['evaluations']} evaluations in {summary['wall_time_s']:.1f} s{verdict}"
+            + (
+                f"; {summary['nonfinite_evaluations']} blew up (non-finite)"
+                if summary["nonfinite_evaluations"]
+                else ""
+            )
         )
         trajectories.append(trajectory)
         previous_name = stage.name
@@ -691,6 +696,7 @@ def _run_stages(
                         "terms",
                         "check",
                         "evaluations",
+                        "nonfinite_evaluations",
                         "wall_time_s",
                         "search_time_s",
                     )
