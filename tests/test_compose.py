@@ -210,3 +210,15 @@ def test_a_phase_names_a_stage_exactly_when_its_run_has_stages(staged, component
     raw["phase"][0]["stage"] = "kick"
     with pytest.raises(ConfigError, match=r"stage = 'kick' is not a stage of .* no stage key"):
         parse_compose_config(raw)
+
+
+def test_every_phase_is_checked_before_a_component_runs(components):
+    """A bad results folder in a later phase is reported before an earlier phase's config
+    is run (nothing is searched, nothing written)."""
+    raw = compose_raw(components)
+    raw["phase"][0] = {"name": "kick", "config": "configs/default.toml", "ticks": 50}
+    raw["phase"][1]["results"] = "no/such/folder"
+    ran = []
+    with pytest.raises(ConfigError, match=r'\[\[phase\]\] 2 \("roll"\): results = .no/such/folder'):
+        parse_compose_config(raw, run_component=ran.append)
+    assert ran == []

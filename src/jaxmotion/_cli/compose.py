@@ -131,9 +131,12 @@ def parse_compose_config(
     """`read_compose_config` on a config already read from TOML."""
     head, phases_cfg, script_cfg, search_cfg, simulation_cfg, output_cfg = _tables(raw, name)
     ticks = [c["ticks"] for c in phases_cfg]
-    for i, cfg in enumerate(phases_cfg, start=1):  # every config checked before any runs
+    for i, cfg in enumerate(phases_cfg, start=1):  # every phase checked before any runs
+        where = f'[[phase]] {i} ("{cfg["name"]}")'
         if "config" in cfg:
-            _component_config(f'[[phase]] {i} ("{cfg["name"]}")', cfg)
+            _component_config(where, cfg)
+        else:
+            _component(where, Path(cfg["results"]), cfg.get("stage"))
     ran: dict[Path, Path] = {}  # a multi-stage config named by several phases runs once
     phases = []
     for i, cfg in enumerate(phases_cfg, start=1):
