@@ -88,6 +88,7 @@ def test_starts_are_reproducible_from_their_key():
         (dict(angles=-0.1), "angles = -0.1"),
         (dict(velocity="fast"), "velocity = 'fast'"),
         (dict(reduce="median"), "reduce = 'median'; allowed: 'mean', 'worst'"),
+        (dict(common="yes"), "common = 'yes'; allowed: True or False"),
     ],
 )
 def test_bad_settings_are_refused_naming_them(kwargs, match):
@@ -187,6 +188,9 @@ def test_a_config_asks_for_robustness_and_round_trips():
     assert again.config == e.config and again.task.robustness == e.task.robustness
     with pytest.raises(ConfigError, match=r"\[robustness\] reduce = 'median'.*\"mean\" or"):
         parse_config({**raw, "robustness": {"reduce": "median"}})
+    with pytest.raises(ConfigError, match=r"\[robustness\] common = 1"):
+        parse_config({**raw, "robustness": {"common": 1}})
+    assert parse_config({**raw, "robustness": {"common": True}}).task.robustness.common
     with pytest.raises(ConfigError, match=r"\[robustness\].*'spin'"):
         parse_config({**raw, "robustness": {"spin": 0.1}})
     assert parse_config({k: v for k, v in raw.items() if k != "robustness"}).task.robustness is None
@@ -199,3 +203,40 @@ def test_a_robust_hill_climb_is_reproducible(robust_task):
     a, b = run(), run()
     np.testing.assert_array_equal(a.history.fitness, b.history.fitness)
     assert a.best_fitness >= float(np.max(a.history.fitness[:4]))
+
+
+def test_common_starts_are_drawn_once_per_search(robust_task):
+    """With `common=True` every evaluation of a search faces the starts its initial set
+    drew (serial search: the enrichment rounds and every generation; hill climbing: every
+    step), so climbers are compared on the same starts; by default each generation or step
+    draws new ones. A common search is reproducible and never loses its initial best."""
+    import dataclasses
+
+    from jaxmotion._search.hill_climb import ParallelHillClimb, _start_key
+    from jaxmotion._search.serial import _start_keys
+
+    common = like(robust_task, robustness=jm.Robustness(samples=3, common=True))
+    keys = jr.split(jr.key(0), 2)
+
+    def drawn(task):  # (stream, index): init, an enrichment round, two generations
+        calls = ((0, 0), (1, 2), (2, 0), (2, 7))
+        return [np.asarray(jr.key_data(_start_keys(task, keys, 4, s, i))) for s, i in calls]
+
+    shared, fresh = drawn(common), drawn(robust_task)
+    for k in shared[1:]:
+        np.testing.assert_array_equal(k, shared[0])
+    np.testing.assert_array_equal(fresh[0], shared[0])  # the same first draw
+    assert not any(np.array_equal(fresh[0], k) for k in fresh[1:])
+    assert not np.array_equal(fresh[2], fresh[3])
+
+    state, _ = ParallelHillClimb(size=4, batch=2).init(common, key=jr.key(1))
+    later = dataclasses.replace(state, step=state.step + 5)
+    for task, same in ((common, True), (robust_task, False)):
+        a = np.asarray(jr.key_data(_start_key(task, state)))
+        b = np.asarray(jr.key_data(_start_key(task, later)))
+        assert np.array_equal(a, b) == same
+
+    run = lambda: jm.serial_search(common, key=jr.key(5), climbers=4, generations=4)
+    a, b = run(), run()
+    np.testing.assert_array_equal(a.history.fitness, b.history.fitness)
+    assert a.best_fitness >= float(np.max(np.asarray(a.history.fitness)[:4]))

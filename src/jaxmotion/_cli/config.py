@@ -433,6 +433,7 @@ ROBUSTNESS = {
     "orientation": Key("number", 0.1, _nonnegative, ">= 0 (rad, the root's turn)"),
     "velocity": Key("number", 0.2, _nonnegative, ">= 0 (m/s, each component)"),
     "reduce": Key("string", "mean", lambda v: v in ("mean", "worst"), '"mean" or "worst"'),
+    "common": Key("bool", False),
 }
 
 

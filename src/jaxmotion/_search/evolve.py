@@ -160,7 +160,12 @@ class Evolve(eqx.Module):
         """ask, evaluate (one call), tell. Returns the new state and the fitness of this
         generation's `4 size / 5` evaluations."""
         children = self.ask(task, state)
-        starts = None if task.robustness is None else _fold(state.key, state.generation)
+        if task.robustness is None:
+            starts = None
+        elif task.robustness.common:  # the starts `init` drew, at every generation
+            starts = jr.fold_in(state.key, _STARTS)
+        else:
+            starts = _fold(state.key, state.generation)
         fitness = task.evaluate(children, chunk=self.chunk, key=starts)
         return self.tell(state, children, fitness), fitness
 

@@ -110,6 +110,8 @@ def _start_key(task: Task, state: HillClimbState):
     robustness."""
     if task.robustness is None:
         return None
+    if task.robustness.common:  # the starts `init` drew, at every step
+        return jr.fold_in(state.key, _STARTS)
     return _fold(state.key, state.step)
 
 

@@ -208,6 +208,8 @@ def _start_keys(task: Task, keys, climbers: int, stream: int, index):
     same starts, and a seed draws them alike alone or among others."""
     if task.robustness is None:
         return None
+    if task.robustness.common:  # the initial set's starts, for every evaluation
+        stream, index = 0, 0
     return _seed_keys(keys, climbers, stream, jnp.asarray(index, dtype=jnp.int32))
 
 
