@@ -7,6 +7,7 @@ Fitness is always maximised.
 """
 
 from . import checks as checks
+from . import export as export
 from . import figures as figures
 from . import lattices as lattices
 from ._body.base import AbstractBody as AbstractBody
@@ -144,6 +145,7 @@ __all__ = [
     "closeness",
     "deform",
     "evolve",
+    "export",
     "figures",
     "fitness_and_gradient",
     "floor_force",

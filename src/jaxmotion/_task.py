@@ -183,18 +183,28 @@ class Task(eqx.Module):
         return (score, senses) if sensed else score
 
     def trajectories(
-        self, params: AbstractController, *, senses: bool = False, initial_state=None
+        self,
+        params: AbstractController,
+        *,
+        senses: bool = False,
+        initial_state=None,
+        positions: bool = False,
     ) -> Trajectory:
         """The trajectories behind `evaluate`, with a leading batch axis (`senses`: with
-        `Trajectory.senses`). `initial_state`: a body state to start every controller from
-        instead of the task's, or a batch of `SimulationState`s (`trajectories.final`) to
-        continue each controller from its own."""
+        `Trajectory.senses`; `positions`: with `Trajectory.positions`). `initial_state`: a
+        body state to start every controller from instead of the task's, or a batch of
+        `SimulationState`s (`trajectories.final`) to continue each controller from its
+        own."""
         execution.batch_size(params)
         task = self if initial_state is None else _starting(self, initial_state)
-        fn = _sensed_trajectories if senses else _trajectories
         if isinstance(initial_state, SimulationState):
             # Each controller continues from its own state: the states are batched with it.
+            if positions:
+                return execution.run(_continued_posed, (task, senses), (params, initial_state))
             return execution.run(_continued, (task, senses), (params, initial_state))
+        if positions:
+            return execution.run(_posed_trajectories, (task, senses), params)
+        fn = _sensed_trajectories if senses else _trajectories
         return execution.run(fn, task, params)
 
     def simulate(
@@ -207,9 +217,12 @@ class Task(eqx.Module):
         initial_state=None,
         rtol: float | None = None,
         atol: float | None = None,
+        positions: bool = False,
     ) -> Trajectory:
         """Simulate one controller (playback) with the search settings, unless `solver`,
         `dt` or `save_dt` say otherwise (`solver="tsit5"` for an adaptive check).
+        `positions`: also keep the body's positions state at the saved times
+        (`Trajectory.positions`, what `jaxmotion.export` needs).
 
         With the search's own fixed-step solver the trajectory is computed exactly as
         `evaluate` computes it, so a controller replays to the very fitness the search
@@ -236,12 +249,12 @@ class Task(eqx.Module):
             one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], params)
             if isinstance(initial_state, SimulationState):
                 state = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], initial_state)
-                out = task.trajectories(one, initial_state=state)
+                out = task.trajectories(one, initial_state=state, positions=positions)
             else:
-                out = task.trajectories(one, initial_state=initial_state)
+                out = task.trajectories(one, initial_state=initial_state, positions=positions)
             return jax.tree_util.tree_map(lambda a: a[0], out)
         start = initial_state if initial_state is not None else task.initial_state
-        return _simulate_one(task, params, solver, start, rtol, atol)
+        return _simulate_one(task, params, solver, start, rtol, atol, positions)
 
     def fitness(self, trajectory: Trajectory) -> Float[Array, "..."]:
         """The objective of one trajectory, or of a batch of them (leading axis)."""
@@ -295,7 +308,9 @@ def _timing(task: Task) -> dict:
     return dict(dt=task.dt, save_dt=task.save_dt, control_dt=task.control_dt)
 
 
-def _local(task: Task, params, *, senses: bool = False, initial_state=None) -> Trajectory:
+def _local(
+    task: Task, params, *, senses: bool = False, initial_state=None, positions: bool = False
+) -> Trajectory:
     start = task.initial_state if initial_state is None else initial_state
     return simulate_batch(
         task.body,
@@ -304,6 +319,7 @@ def _local(task: Task, params, *, senses: bool = False, initial_state=None) -> T
         task.duration,
         initial_state=start,
         record_senses=senses,
+        record_positions=positions,
         **_timing(task),
     )
 
@@ -366,8 +382,20 @@ def _continued(args, batch) -> Trajectory:
     return _local(task, params, senses=senses, initial_state=state)
 
 
+def _posed_trajectories(args, params) -> Trajectory:
+    task, senses = args
+    return _local(task, params, senses=senses, positions=True)
+
+
+def _continued_posed(args, batch) -> Trajectory:
+    (task, senses), (params, state) = args, batch
+    return _local(task, params, senses=senses, initial_state=state, positions=True)
+
+
 @simulation_jit
-def _simulate_one(task: Task, params, solver, initial_state, rtol, atol) -> Trajectory:
+def _simulate_one(
+    task: Task, params, solver, initial_state, rtol, atol, positions=False
+) -> Trajectory:
     return simulate(
         task.body,
         params,
@@ -377,5 +405,6 @@ def _simulate_one(task: Task, params, solver, initial_state, rtol, atol) -> Traj
         initial_state=initial_state,
         rtol=rtol,
         atol=atol,
+        positions=positions,
         **_timing(task),
     )

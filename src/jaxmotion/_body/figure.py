@@ -612,6 +612,53 @@ class Figure(AbstractBody):
         out[:, 2] -= out[:, 2].min()
         return out
 
+    def rod_poses(self, positions) -> tuple[np.ndarray, np.ndarray]:
+        """Every rod's whole pose (twist included) at each saved time, from the figure's
+        positions state there (`Trajectory.positions`, time leading), computed as the
+        simulation observes it (joint angles clamped to their ranges; NumPy, float64).
+
+        **Arguments:**
+
+        - `positions`: `FigurePositions` with a leading time axis on every leaf (or none:
+            one instant).
+
+        **Returns:** `(rotations, origins)`: `(num_saves, num_rods, 3, 3)` each rod's
+        world orientation relative to the rest pose (a rest-pose vector `u` along the rod
+        lies along `rotations[t, k] @ u` at time `t`), and `(num_saves, num_rods, 3)` the
+        world position of each rod's proximal node; the distal node is `origins[t, k] +
+        rotations[t, k] @ (nodes[d] - nodes[p])`. Without a time axis, the time axis is
+        dropped.
+        """
+        com, quat, angles = (np.asarray(x, dtype=np.float64) for x in positions)
+        single = com.ndim == 1
+        if single:
+            com, quat, angles = com[None], quat[None], angles[None]
+        num = com.shape[0]
+        if self.planar:
+            zeros = np.zeros(num)
+            com = np.stack([com[:, 0], zeros, com[:, 1]], axis=1)
+            quat = np.stack([quat[:, 0], zeros, quat[:, 1], zeros], axis=1)
+        ranges = self.ranges
+        trig = [
+            (np.cos(a), np.sin(a))
+            for a in np.clip(angles, ranges[:, 0], ranges[:, 1]).T.reshape(-1, num)
+        ]
+        all_a, all_r = self._all_angles(trig)
+        pos, _, orient, _ = self._kinematics(all_a, all_r)
+        like = np.zeros(num)
+        com_rel = self._centre(pos, like)[0]
+        as_array = lambda v: np.stack([np.broadcast_to(np.asarray(x, float), (num,)) for x in v])
+        rot = np.stack([as_array(row) for row in s.quaternion_matrix(tuple(quat.T))]).transpose(
+            2, 0, 1
+        )  # (num, 3, 3)
+        rest_rel = np.stack([as_array(pos[p]) - as_array(com_rel) for p, _ in self.rods])
+        origins = com[:, None, :] + np.einsum("tij,kjt->tki", rot, rest_rel)
+        orients = np.stack(
+            [np.stack([as_array(row) for row in orient[k]]) for k in range(self.num_rods)]
+        ).transpose(3, 0, 1, 2)  # (num, rods, 3, 3)
+        rotations = np.einsum("tij,tkjl->tkil", rot, orients)
+        return (rotations[0], origins[0]) if single else (rotations, origins)
+
     # ------------------------------------------------------------------ state
 
     def initial_state(self) -> BodyState:

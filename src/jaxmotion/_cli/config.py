@@ -64,7 +64,7 @@ def read_toml(path: Path) -> dict[str, Any]:
 class Key:
     """One config key: its type, default and a check returning what is allowed (or None)."""
 
-    kind: str  # "number", "integer", "bool", "string", "numbers"
+    kind: str  # "number", "integer", "bool", "string", "numbers", "strings"
     default: Any = _REQUIRED
     check: Callable[[Any], bool] | None = None
     allowed: str = ""
@@ -86,6 +86,7 @@ def _describe(kind: str, allowed: str, length: int | None) -> str:
         "bool": "true or false",
         "string": "a string",
         "numbers": f"a list of {length} numbers" if length else "a list of numbers",
+        "strings": "a list of strings",
     }[kind]
     return f"{base} {allowed}".strip()
 
@@ -126,6 +127,10 @@ def _check_value(where: str, name: str, spec: Key, value: Any) -> Any:
         if any(abs(v) > FLOAT32_MAX for v in value):
             raise _too_large(where, name, value, what)
         value = [float(v) for v in value]
+    elif spec.kind == "strings":
+        if not isinstance(value, list) or any(not isinstance(v, str) for v in value):
+            raise fail()
+        value = list(value)
     if spec.check is not None and not spec.check(value):
         raise fail()
     return value
@@ -475,6 +480,8 @@ def search_plan(search: Mapping[str, Any]) -> str:
     )
 
 
+EXPORT_FORMATS = ("bvh",)  # what `[output] export` and `python -m jaxmotion export` write
+
 OUTPUT = {
     "directory": Key(
         "string",
@@ -484,7 +491,27 @@ OUTPUT = {
     ),
     "animation": Key("bool", True),
     "fps": Key("integer", 25, lambda v: 1 <= v <= 100, "from 1 to 100"),
+    # Files for the animators' tools written into the results folder (optional: a config
+    # without it resolves as before).
+    "export": Key(
+        "strings",
+        None,
+        lambda v: all(f in EXPORT_FORMATS for f in v) and len(set(v)) == len(v),
+        "each one of " + ", ".join(f'"{f}"' for f in EXPORT_FORMATS) + " (no repeats)",
+    ),
 }
+
+
+def _check_export(output_cfg: Mapping[str, Any], body_kind: str, body_cfg: Mapping) -> None:
+    """`[output] export` against the body: BVH needs a figure's skeleton."""
+    formats = output_cfg.get("export") or []
+    if "bvh" in formats and body_kind != "figure":
+        raise ConfigError(
+            f"[output] export = {formats!r}: BVH exports articulated figures; this config's "
+            f"[body] is a lattice ({body_cfg.get(body_kind, body_kind)!r}); allowed: no "
+            '"bvh" for a lattice'
+        )
+
 
 CHECK = {
     "motion": Key(
@@ -691,6 +718,7 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
     search_cfg = _read_section("[search]", search_table, _search_schema(search_table))
     _check_width(search_cfg, simulation_cfg)
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
+    _check_export(output_cfg, body_kind, body_cfg)
     robust_cfg = None
     if "robustness" in raw:
         robust_cfg = _read_section("[robustness]", raw["robustness"], ROBUSTNESS)
@@ -840,10 +868,11 @@ def _parse_stages(raw: Mapping[str, Any], name: str) -> Experiment:
         )
     # The shared sections first, so their errors name no stage.
     body_table = raw.get("body", {})
-    body_schema, _, _ = _body_schema(body_table)
+    body_schema, _, body_kind = _body_schema(body_table)
     body_cfg = _read_section("[body]", body_table, body_schema)
     world_cfg = _read_section("[world]", raw.get("world", {}), WORLD)
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
+    _check_export(output_cfg, body_kind, body_cfg)
     check_cfg = _read_section("[check]", raw["check"], CHECK) if "check" in raw else None
 
     names: list[str] = []

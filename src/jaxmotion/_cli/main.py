@@ -16,6 +16,9 @@ jaxmotion: automatic motion synthesis for animated characters.
   python -m jaxmotion run CONFIG.toml      run a configured experiment (see configs/)
   python -m jaxmotion check CONFIG.toml    check a config without running it
   python -m jaxmotion replay RESULTS_DIR   re-simulate a run's best controller and report it
+  python -m jaxmotion export RESULTS_DIR --format bvh [--out PATH]
+                                           re-simulate a figure's best motion and write it as
+                                           BVH for Blender, Maya or a game engine
   python -m jaxmotion compare CONFIG.toml  stochastic search vs search + gradient refinement
                                            on equal budgets, over several seeds
   python -m jaxmotion compose CONFIG.toml  a composite motion: controllers found earlier, in
@@ -86,6 +89,19 @@ def _parser() -> argparse.ArgumentParser:
         help="solver for the replay (default: the search's fixed-step solver)",
     )
     replay.add_argument("--gif", metavar="PATH", help="also write the motion as a GIF here")
+    export = sub.add_parser(
+        "export",
+        help="write a results folder's best motion for animation tools (BVH)",
+        description="Re-simulate the best controller of a results folder (every stage of a "
+        "multi-stage run, joined) with the search's own settings and write the motion as a "
+        "file for animation tools: BVH (figures only; Y-up, metres, one frame per saved "
+        "sample; see the README's Export section).",
+    )
+    export.add_argument("results", help="a results folder written by `run`")
+    export.add_argument("--format", required=True, help="the file format: bvh", metavar="FORMAT")
+    export.add_argument(
+        "--out", metavar="PATH", help="the file to write (default: RESULTS/motion.bvh)"
+    )
     compare = sub.add_parser(
         "compare",
         help="stochastic search vs search + gradient refinement, equal budgets",
@@ -465,6 +481,52 @@ def _replay(args) -> int:
     return 0
 
 
+def _export(args) -> int:
+    from .config import EXPORT_FORMATS, ConfigError
+    from .results import (
+        EXPORT_FILES,
+        concatenate_trajectories,
+        load_result,
+        load_stages,
+        replay_stages,
+        results_config,
+    )
+
+    if args.format not in EXPORT_FORMATS:
+        raise ConfigError(
+            f"--format = {args.format!r}; allowed: one of "
+            + ", ".join(repr(f) for f in EXPORT_FORMATS)
+        )
+    folder = Path(args.results)
+    raw = results_config(folder)
+    body = raw.get("body", {})
+    if args.format == "bvh" and not (isinstance(body, dict) and "figure" in body):
+        kind = body.get("lattice", "cube") if isinstance(body, dict) else body
+        raise ConfigError(
+            f"{folder}: --format bvh exports articulated figures; this run's [body] is a "
+            f"lattice ({kind!r}), which has no skeleton"
+        )
+    out = Path(args.out) if args.out is not None else folder / EXPORT_FILES[args.format]
+    if not out.parent.is_dir():
+        raise ConfigError(f"--out = {args.out!r}: the folder {str(out.parent)!r} does not exist")
+    if "stage" in raw:
+        experiment, controllers = load_stages(folder)
+        trajectory = concatenate_trajectories(
+            replay_stages(experiment, controllers, positions=True)
+        )
+    else:
+        experiment, controller = load_result(folder)
+        trajectory = experiment.task.simulate(controller, positions=True)
+    from ..export import bvh
+
+    try:
+        bvh(trajectory, experiment.task.body, out)
+    except ValueError as e:
+        raise ConfigError(f"{folder}: {e}") from None
+    print(out)
+    return 0
+
+
 def _compare(args) -> int:
     from .compare import CompareSettings, run_compare
     from .config import ConfigError
@@ -550,9 +612,14 @@ def _check_options(args) -> None:
         if not value.strip() or "\x00" in value:
             raise ConfigError(f"{option} = {value!r}; allowed: a path (not empty)")
         path = Path(value)
-        if name == "out" and path.exists() and not path.is_dir():
+        exporting = getattr(args, "command", None) == "export"
+        if name == "out" and not exporting and path.exists() and not path.is_dir():
             raise ConfigError(
                 f"{option} = {value!r} is a file; allowed: a folder (existing or not)"
+            )
+        if name == "out" and getattr(args, "command", None) == "export" and path.is_dir():
+            raise ConfigError(
+                f"{option} = {value!r} is a folder; allowed: a file path (e.g. motion.bvh)"
             )
         if name == "gif" and path.is_dir():
             raise ConfigError(f"{option} = {value!r} is a folder; allowed: a file path")
@@ -594,6 +661,8 @@ def main(argv: list[str] | None = None) -> int:
             return _compare(args)
         if args.command == "compose":
             return _compose(args)
+        if args.command == "export":
+            return _export(args)
         return _replay(args)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)

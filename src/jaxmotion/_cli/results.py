@@ -514,7 +514,8 @@ def _search_and_write(
     evaluations = sum(len(r.history) for r in runs)
     # Every run's best replayed with the search's own settings, so its terms are what the
     # search scored; the overall best is the best run's (serial search's `runs`).
-    replays = [task.simulate(r.best) for r in runs]
+    exports = experiment.output.get("export") or []
+    replays = [task.simulate(r.best, positions=bool(exports)) for r in runs]
     trajectory = replays[int(np.argmax([r.best_fitness for r in runs]))]
     values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
     check = run_check(experiment, trajectory)
@@ -557,6 +558,7 @@ def _search_and_write(
         fig.savefig(folder / "learning_curves.png", dpi=120)
     if want_animation:
         animate(trajectory, task.body, fps=experiment.output["fps"]).save(folder / "motion.gif")
+    write_exports(exports, trajectory, task.body, folder)
     summary = {
         "name": experiment.name,
         "seed": experiment.seed,
@@ -704,6 +706,9 @@ def _run_stages(
             }
         )
     check = run_sequence_check(experiment, trajectories)
+    exports = experiment.output.get("export") or []
+    if exports:
+        write_exports(exports, concatenate_trajectories(trajectories), experiment.task.body, folder)
     if want_animation:
         whole = concatenate_trajectories(trajectories)
         animate(whole, experiment.task.body, fps=experiment.output["fps"]).save(
@@ -736,10 +741,12 @@ def replay_stages(
     controllers: Sequence[AbstractController],
     *,
     solver: str = "symplectic",
+    positions: bool = False,
 ) -> list[Trajectory]:
     """Re-simulate a multi-stage experiment's stages with these controllers, one per stage,
     each starting where the previous one's motion ended (`start_where`). With the search's
-    own solver every stage replays bitwise as the run computed it.
+    own solver every stage replays bitwise as the run computed it. `positions`: keep each
+    trajectory's positions (`Trajectory.positions`, for `jaxmotion.export`).
 
     **Raises:** `ValueError` if the number of controllers is not the number of stages.
     """
@@ -751,8 +758,21 @@ def replay_stages(
     trajectories: list[Trajectory] = []
     for stage, controller in zip(experiment.stages, controllers, strict=True):
         stage = _chained(stage, trajectories)
-        trajectories.append(stage.task.simulate(controller, solver=solver))
+        trajectories.append(stage.task.simulate(controller, solver=solver, positions=positions))
     return trajectories
+
+
+EXPORT_FILES = {"bvh": "motion.bvh"}  # the file each export format writes in a results folder
+
+
+def write_exports(formats: Sequence[str], trajectory: Trajectory, body, folder: Path) -> None:
+    """Write the motion in each of `formats` (`[output] export`) into a results folder
+    (`EXPORT_FILES` names the files). The trajectory must hold its positions."""
+    from ..export import bvh
+
+    for name in formats:
+        if name == "bvh":
+            bvh(trajectory, body, folder / EXPORT_FILES["bvh"])
 
 
 def fitness_of(task, controller) -> float:

@@ -240,8 +240,9 @@ def _save_ticks(t0, grid: TimeGrid):
 
 
 def _trajectory(ts, samples, final: SimulationState, finite) -> Trajectory:
-    """A Trajectory from the samples `(observations, senses)` and the final state."""
-    obs, senses = samples
+    """A Trajectory from the samples `(observations, senses, positions)` and the final
+    state."""
+    obs, senses, positions = samples
     return Trajectory(
         ts=ts,
         points=obs.points,
@@ -251,6 +252,7 @@ def _trajectory(ts, samples, final: SimulationState, finite) -> Trajectory:
         finite=finite,
         final=final,
         senses=senses,
+        positions=positions,
     )
 
 
@@ -285,6 +287,7 @@ def simulate(
     max_steps: int = 100_000,
     initial_state=None,
     senses: bool = False,
+    positions: bool = False,
 ) -> Trajectory:
     """Simulate `body` driven by `controller` in `world` for `duration` seconds.
 
@@ -320,6 +323,8 @@ def simulate(
         on the fixed-step path `[0, T1]` then `[T1, T]` computes bitwise what `[0, T]`
         does.
     - `senses`: also save the senses the controller perceives (`Trajectory.senses`).
+    - `positions`: also save the body's positions state (`Trajectory.positions`: what
+        rebuilds a figure's every rod, twist included, for export).
 
     **Returns:** a `Trajectory` sampled at the save times, with the final state; its
     `finite` is `False` for a run that blew up (it never raises for that, so it is safe
@@ -333,7 +338,13 @@ def simulate(
     controller = _on_grid(controller, grid)
     plan = _prepare(body, controller)
     system = ClosedLoop(
-        body.dynamics(), controller, plan, world, grid.control_dt, record_senses=senses
+        body.dynamics(),
+        controller,
+        plan,
+        world,
+        grid.control_dt,
+        record_senses=senses,
+        record_positions=positions,
     )
     t0, y0 = _start(system, body, initial_state)
     system = system.with_start(y0[1])
@@ -397,6 +408,7 @@ def simulate_batch(
     initial_state=None,
     batch: int | None = None,
     record_senses: bool = False,
+    record_positions: bool = False,
     rtol: float | None = None,
     atol: float | None = None,
     max_steps: int = 100_000,
@@ -409,7 +421,8 @@ def simulate_batch(
 
     `initial_state` is shared (one body state, or one `SimulationState`) or per controller
     (a leading batch axis). `controllers=None` simulates `batch` unactuated bodies.
-    `record_senses` also saves the senses each controller perceives (`Trajectory.senses`).
+    `record_senses` also saves the senses each controller perceives (`Trajectory.senses`),
+    `record_positions` each body's positions state (`Trajectory.positions`).
     """
     grid = time_grid(duration, dt, save_dt, control_dt)
     _check_solver(solver)
@@ -427,6 +440,7 @@ def simulate_batch(
         grid.control_dt,
         batched=True,
         record_senses=record_senses,
+        record_positions=record_positions,
     )
     t0, y0 = _batched_start(system, body, initial_state, batch)
     system = system.with_start(y0[1])
@@ -434,12 +448,12 @@ def simulate_batch(
         system, y0, t0, grid, solver, rtol=rtol, atol=atol, max_steps=max_steps
     )
     # (time, ..., batch) -> (batch, time, ...); final (..., batch) -> (batch, ...)
-    obs, senses = _to_first(samples)
+    obs, senses, positions = _to_first(samples)
     body_state, control = _to_first((final[0], system.restore(final[1])))
     finite = ok & _per_batch_finite((obs.points, obs.com, obs.frame, body_state, control))
     ts = jnp.broadcast_to(ts, (batch, ts.shape[0]))
     final = SimulationState(ts[:, -1], body_state, control)
-    return _trajectory(ts, (obs, senses), final, finite)
+    return _trajectory(ts, (obs, senses, positions), final, finite)
 
 
 def _per_batch_finite(tree):

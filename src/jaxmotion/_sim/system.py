@@ -39,6 +39,8 @@ class ClosedLoop(eqx.Module):
     - `control_dt`: the control period, s.
     - `batched`: whether every state, controller and plan leaf has a trailing batch axis.
     - `record_senses`: whether samples include the senses the controller perceives.
+    - `record_positions`: whether samples include the body's positions state (what rebuilds
+        a figure's whole pose; the search never asks for it).
     - `control_dtypes`: the dtypes of the controller's state leaves (`with_start`).
     """
 
@@ -49,6 +51,7 @@ class ClosedLoop(eqx.Module):
     control_dt: float = eqx.field(static=True)
     batched: bool = eqx.field(static=True, default=False)
     record_senses: bool = eqx.field(static=True, default=False)
+    record_positions: bool = eqx.field(static=True, default=False)
     control_dtypes: Any = eqx.field(static=True, default=None)
 
     # ------------------------------------------------------------------ layout
@@ -130,19 +133,20 @@ class ClosedLoop(eqx.Module):
         )
         return (body_rates.positions, c_pos), (body_rates.velocities, c_vel)
 
-    def sample(self, t, y, args=None) -> tuple[Observation, Any]:
-        """What is saved at a sample: the observables and (if recorded) the senses the
-        controller perceives at the tick here."""
+    def sample(self, t, y, args=None) -> tuple[Observation, Any, Any]:
+        """What is saved at a sample: the observables, (if recorded) the senses the
+        controller perceives at the tick here and (if recorded) the body's positions."""
         del args
         body, control = y
         obs = self._body("observe", (body.positions,), (self.world,))
+        positions = body.positions if self.record_positions else None
         if not self.record_senses:
-            return obs, None
+            return obs, None, positions
         senses = self.senses(body)
         if self.controller is not None:
             perceive = self._control("perceive", (None, -1, -1, -1))
             senses = perceive(self.controller, t, self.restore(control), senses, self.plan)
-        return obs, senses
+        return obs, senses, positions
 
 
 @functools.partial(eqx.filter_jit, inline=True)

@@ -68,6 +68,13 @@ class Trajectory(eqx.Module):
     - `senses`: `(num_saves, num_senses)` the senses the controller perceived at the saved
         times (`AbstractController.perceive`), when asked for (`Task.evaluate_sensed`,
         `Task.trajectories(..., senses=True)`); otherwise `None`.
+    - `positions`: the body's positions state at the saved times (time leading on every
+        leaf), when asked for (`simulate(..., positions=True)`, `Task.simulate(...,
+        positions=True)`); otherwise `None`. For a `Figure` it is `FigurePositions` (centre
+        of mass, root orientation, free joint angles): with the figure it rebuilds every
+        rod's whole pose, twist included (`Figure.rod_poses`), which the endpoints in
+        `points` do not; for a `Lattice` it is the masses' positions (as `points`). The
+        search never records it.
 
     Under `vmap` every field gains a leading batch axis.
     """
@@ -80,6 +87,7 @@ class Trajectory(eqx.Module):
     finite: Bool[Array, ""]
     final: SimulationState | None = None
     senses: Float[Array, "num_saves num_senses"] | None = None
+    positions: Any = None
 
     @property
     def forward(self) -> Float[Array, "num_saves 3"]:
@@ -115,7 +123,7 @@ def concatenate_trajectories(trajectories: Sequence[Trajectory]) -> Trajectory:
     **Arguments:** one or more unbatched trajectories of the same body.
 
     **Returns:** a `Trajectory`: finite when every part is, `final` the last part's,
-    `senses` joined when every part has them (else None).
+    `senses` and `positions` each joined when every part has them (else None).
 
     **Raises:** `ValueError` for no trajectories, a batched one, or parts of different
     bodies.
@@ -140,10 +148,13 @@ def concatenate_trajectories(trajectories: Sequence[Trajectory]) -> Trajectory:
         offset = offset + part.ts[-1] - part.ts[0]
 
     def join(name):
-        leaves = [getattr(p, name) for p in parts]
-        return jnp.concatenate([leaves[0], *(leaf[1:] for leaf in leaves[1:])])
+        trees = [getattr(p, name) for p in parts]
+        return jax.tree_util.tree_map(
+            lambda first, *rest: jnp.concatenate([first, *(leaf[1:] for leaf in rest)]), *trees
+        )
 
     sensed = all(p.senses is not None for p in parts)
+    posed = all(p.positions is not None for p in parts)
     return Trajectory(
         ts=jnp.concatenate(ts),
         points=join("points"),
@@ -153,4 +164,5 @@ def concatenate_trajectories(trajectories: Sequence[Trajectory]) -> Trajectory:
         finite=jnp.all(jnp.stack([jnp.asarray(p.finite) for p in parts])),
         final=parts[-1].final,
         senses=join("senses") if sensed else None,
+        positions=join("positions") if posed else None,
     )

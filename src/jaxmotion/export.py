@@ -1,0 +1,11 @@
+"""Motions out to the animators' tools: `bvh(trajectory, figure, path)` writes a figure's
+motion as a BVH file (Blender, Maya, MotionBuilder, game engines). The trajectory needs its
+positions (`simulate(..., positions=True)`, `Task.simulate(..., positions=True)`); from the
+command line, `python -m jaxmotion export RESULTS --format bvh`.
+
+These are the library's only functions that write files, and only to the path given.
+"""
+
+from ._export.bvh import bvh as bvh
+
+__all__ = ["bvh"]
