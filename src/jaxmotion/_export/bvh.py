@@ -32,21 +32,19 @@ saved.
 """
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .._body.figure import Figure
 from .._sim.trajectory import Trajectory
+from .base import frame_time, write_atomically
 
 # The file's axes from the world's: (X, Y, Z) = (y, z, x).
 TO_BVH = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
 _AXIS_NAMES = ("X", "Y", "Z")
 _EULER = ("Z", "X", "Y")  # the three-channel order, BVH's usual
 _ALONG = 1e-12  # how close a joint axis must be to a coordinate axis to get its own channel
-_SAME_SPACING = 1e-4  # relative: saved times this evenly spaced make one frame time
-_TIME_DIGITS = 7  # significant digits of the frame time (the saved times are float32)
 _DIGITS = "%.10g"
 
 
@@ -64,16 +62,7 @@ def _check(trajectory: Trajectory, figure: Figure) -> np.ndarray:
             "positions=True (simulate(..., positions=True), Task.simulate(..., "
             "positions=True)) so that every rod's pose can be rebuilt"
         )
-    ts = np.asarray(trajectory.ts, dtype=np.float64)
-    if ts.ndim != 1:
-        raise ValueError(f"the trajectory is batched (ts of shape {ts.shape}); export one motion")
-    if ts.shape[0] < 2:
-        raise ValueError("the trajectory has one sample; a BVH file needs a frame time")
-    steps = np.diff(ts)
-    if not np.all(np.abs(steps - steps[0]) <= _SAME_SPACING * steps[0]):
-        raise ValueError(
-            "the trajectory's saved times are not evenly spaced; BVH needs one frame time"
-        )
+    ts, _ = frame_time(trajectory)
     com = np.asarray(trajectory.positions[0])
     if com.shape[:1] != ts.shape or com.shape[1:] != ((2,) if figure.planar else (3,)):
         raise ValueError(
@@ -234,23 +223,14 @@ def bvh(trajectory: Trajectory, figure: Figure, path: str | os.PathLike) -> Path
     positions, a batched, non-finite or unevenly sampled one, or one of another figure.
     """
     ts = _check(trajectory, figure)
+    _, dt = frame_time(trajectory)
     channels, children, end_site = _layout(figure)
     lines, order = _hierarchy(figure, channels, children, end_site)
     values = _motion(trajectory, figure, channels, order)
-    frame_time = float(f"{(ts[-1] - ts[0]) / (len(ts) - 1):.{_TIME_DIGITS}g}")
-    lines += ["MOTION", f"Frames: {len(ts)}", f"Frame Time: {frame_time!r}"]
+    lines += ["MOTION", f"Frames: {len(ts)}", f"Frame Time: {dt!r}"]
     lines += [" ".join(_DIGITS % x for x in row + 0.0) for row in values]
     text = "\n".join(lines) + "\n"
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_atomically(path, lambda tmp: tmp.write_text(text))
 
 
 __all__ = ["TO_BVH", "bvh"]
