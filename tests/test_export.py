@@ -10,6 +10,7 @@ import equinox as eqx
 import jax
 import numpy as np
 import pytest
+from pxr import Usd, UsdGeom
 
 import jaxmotion as jm
 from jaxmotion import figures
@@ -18,6 +19,7 @@ from jaxmotion._export.bvh import TO_BVH
 from jaxmotion.experiment import ConfigError, parse_config, run_experiment
 
 FK_TOLERANCE = 1e-4  # m: the issue's bound on rod endpoints rebuilt from the file
+USD_TOLERANCE = 1e-5  # m: the issue's bound on USD world transforms and points
 TIME_TOLERANCE = 1e-9  # s: the frame time against the save interval (written to 7 digits)
 DURATION = 0.3  # s: long enough for joints to reach their limits and the root to turn
 SAVE_DT = 0.02  # s
@@ -267,6 +269,86 @@ def test_bvh_is_written_atomically(motions, tmp_path, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["motion.bvh"]
 
 
+# ------------------------------------------------------------------------------------ USD
+
+
+def _check_stage(stage, num: int) -> None:
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
+    assert abs(stage.GetTimeCodesPerSecond() - 1.0 / SAVE_DT) <= TIME_TOLERANCE / SAVE_DT**2
+    assert stage.GetFramesPerSecond() == stage.GetTimeCodesPerSecond()
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0.0, float(num - 1))
+    assert stage.GetPrimAtPath("/World/floor").IsValid()
+
+
+@pytest.mark.parametrize("name", FIGURES)
+def test_usd_world_transforms_put_every_rod_where_it_was(motions, tmp_path, name):
+    figure, trajectory = motions[name]
+    path = jm.export.usd(trajectory, figure, tmp_path / f"{name}.usda")
+    stage = Usd.Stage.Open(str(path))
+    num = len(trajectory.ts)
+    _check_stage(stage, num)
+    rods = {p.GetName(): p for p in stage.Traverse() if p.GetName().startswith("rod")}
+    assert set(rods) == {f"rod{k}" for k in range(figure.num_rods)}
+    nodes = np.array(figure.nodes)
+    homogeneous = np.concatenate([nodes, np.ones((len(nodes), 1))], axis=1)
+    worst = 0.0
+    for k, (p, d) in enumerate(figure.rods):
+        xformable = UsdGeom.Xformable(rods[f"rod{k}"])
+        assert xformable.GetTimeSamples() == [float(t) for t in range(num)]
+        for t in range(num):
+            world = np.array(xformable.ComputeLocalToWorldTransform(float(t)))  # p' = p M
+            placed = homogeneous[[p, d]] @ world
+            simulated = np.asarray(trajectory.points[t])[[p, d]]
+            worst = max(worst, np.abs(placed[:, :3] - simulated).max())
+    assert worst <= USD_TOLERANCE, f"{name}: worst endpoint error {worst:.3g} m"
+
+
+def test_usd_lattice_points_and_springs_follow_the_masses(tmp_path):
+    # A lattice's motion is its masses' positions: any will do (a tumbling, stretching cube
+    # drawn at random here costs no compilation).
+    cube = jm.lattices.cube()
+    rng = np.random.default_rng(0)
+    num = 16
+    points = np.asarray(cube.points)[None] + rng.normal(0.0, 0.1, (num, cube.num_points, 3))
+    trajectory = jm.Trajectory(
+        ts=jax.numpy.arange(num) * SAVE_DT,
+        points=jax.numpy.asarray(points, dtype=jax.numpy.float32),
+        com=jax.numpy.asarray(points.mean(axis=1)),
+        frame=jax.numpy.broadcast_to(jax.numpy.eye(3), (num, 3, 3)),
+        contact=jax.numpy.zeros((num, cube.num_points), dtype=bool),
+        finite=jax.numpy.asarray(True),
+    )
+    path = jm.export.usd(trajectory, cube, tmp_path / "cube.usd")
+    stage = Usd.Stage.Open(str(path))
+    num = len(trajectory.ts)
+    _check_stage(stage, num)
+    masses = UsdGeom.Points(stage.GetPrimAtPath("/World/cube/masses")).GetPointsAttr()
+    springs = UsdGeom.BasisCurves(stage.GetPrimAtPath("/World/cube/springs"))
+    assert list(springs.GetCurveVertexCountsAttr().Get()) == [2] * len(cube.springs)
+    ends = np.asarray(cube.springs).reshape(-1)
+    worst = 0.0
+    for t in range(num):
+        simulated = np.asarray(trajectory.points[t])
+        worst = max(worst, np.abs(np.array(masses.Get(float(t))) - simulated).max())
+        curve = np.array(springs.GetPointsAttr().Get(float(t)))
+        worst = max(worst, np.abs(curve - simulated[ends]).max())
+    assert worst <= USD_TOLERANCE
+
+
+def test_usd_refuses_what_it_cannot_write(motions, tmp_path):
+    figure, trajectory = motions["star_man"]
+    with pytest.raises(ValueError, match=r"allowed: a name ending in \.usd"):
+        jm.export.usd(trajectory, figure, tmp_path / "a.fbx")
+    with pytest.raises(ValueError, match="positions=True"):
+        jm.export.usd(
+            eqx.tree_at(lambda t: t.positions, trajectory, None), figure, tmp_path / "b.usd"
+        )
+    with pytest.raises(ValueError, match="this body"):
+        jm.export.usd(trajectory, figures.rex(), tmp_path / "c.usd")
+    assert list(tmp_path.iterdir()) == []
+
+
 # ------------------------------------------------------------------- config and command line
 
 SNAKE = {
@@ -276,7 +358,7 @@ SNAKE = {
     "objective": {"forward": 1.0},
     "simulation": {"duration": 0.2, "dt": 0.005},
     "search": {"evaluations": 4, "batch": 2, "size": 2},
-    "output": {"animation": False, "export": ["bvh"]},
+    "output": {"animation": False, "export": ["bvh", "usd"]},
 }
 
 
@@ -327,6 +409,13 @@ def test_run_writes_the_bvh_and_export_rewrites_it(snake_results, tmp_path, monk
         for rod, (near, _) in _expected(figure, replay, frame).items():
             worst = max(worst, np.abs(got[rod][0] - near).max())
     assert worst <= FK_TOLERANCE
+    # The USD `run` wrote, and the one `export` writes, read back alike.
+    again = tmp_path / "again.usda"
+    assert (
+        _cli(monkeypatch, "export", str(snake_results), "--format", "usd", "--out", str(again)) == 0
+    )
+    for usd_path in (snake_results / "motion.usd", again):
+        _check_stage(Usd.Stage.Open(str(usd_path)), len(replay.ts))
 
 
 def test_export_refuses_bad_input_with_exit_2(snake_results, tmp_path, monkeypatch, capsys):
@@ -343,6 +432,7 @@ def test_export_refuses_bad_input_with_exit_2(snake_results, tmp_path, monkeypat
             [str(snake_results), "--format", "bvh", "--out", str(nowhere / "x.bvh")],
             "does not exist",
         ),
+        ([str(snake_results), "--format", "usd", "--out", str(tmp_path / "x.bvh")], "a USD file"),
     ]
     before = sorted(p.name for p in snake_results.iterdir())
     for argv, message in cases:

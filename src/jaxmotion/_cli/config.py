@@ -480,7 +480,7 @@ def search_plan(search: Mapping[str, Any]) -> str:
     )
 
 
-EXPORT_FORMATS = ("bvh",)  # what `[output] export` and `python -m jaxmotion export` write
+EXPORT_FORMATS = ("bvh", "usd")  # what `[output] export` and `python -m jaxmotion export` write
 
 OUTPUT = {
     "directory": Key(

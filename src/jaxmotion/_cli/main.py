@@ -16,9 +16,9 @@ jaxmotion: automatic motion synthesis for animated characters.
   python -m jaxmotion run CONFIG.toml      run a configured experiment (see configs/)
   python -m jaxmotion check CONFIG.toml    check a config without running it
   python -m jaxmotion replay RESULTS_DIR   re-simulate a run's best controller and report it
-  python -m jaxmotion export RESULTS_DIR --format bvh [--out PATH]
-                                           re-simulate a figure's best motion and write it as
-                                           BVH for Blender, Maya or a game engine
+  python -m jaxmotion export RESULTS_DIR --format bvh|usd [--out PATH]
+                                           re-simulate a run's best motion and write it for
+                                           Blender, Maya or a game engine (BVH: figures)
   python -m jaxmotion compare CONFIG.toml  stochastic search vs search + gradient refinement
                                            on equal budgets, over several seeds
   python -m jaxmotion compose CONFIG.toml  a composite motion: controllers found earlier, in
@@ -91,16 +91,21 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument("--gif", metavar="PATH", help="also write the motion as a GIF here")
     export = sub.add_parser(
         "export",
-        help="write a results folder's best motion for animation tools (BVH)",
+        help="write a results folder's best motion for animation tools (BVH, USD)",
         description="Re-simulate the best controller of a results folder (every stage of a "
         "multi-stage run, joined) with the search's own settings and write the motion as a "
         "file for animation tools: BVH (figures only; Y-up, metres, one frame per saved "
-        "sample; see the README's Export section).",
+        "sample) or USD (any body; z-up, metres; needs usd-core); see the README's Export "
+        "section.",
     )
     export.add_argument("results", help="a results folder written by `run`")
-    export.add_argument("--format", required=True, help="the file format: bvh", metavar="FORMAT")
     export.add_argument(
-        "--out", metavar="PATH", help="the file to write (default: RESULTS/motion.bvh)"
+        "--format", required=True, help="the file format: bvh or usd", metavar="FORMAT"
+    )
+    export.add_argument(
+        "--out",
+        metavar="PATH",
+        help="the file to write (default: RESULTS/motion.bvh or RESULTS/motion.usd)",
     )
     compare = sub.add_parser(
         "compare",
@@ -507,6 +512,8 @@ def _export(args) -> int:
             f"lattice ({kind!r}), which has no skeleton"
         )
     out = Path(args.out) if args.out is not None else folder / EXPORT_FILES[args.format]
+    if args.format == "usd" and out.suffix not in (".usd", ".usda", ".usdc"):
+        raise ConfigError(f"--out = {args.out!r}; allowed: a USD file (.usd, .usda or .usdc)")
     if not out.parent.is_dir():
         raise ConfigError(f"--out = {args.out!r}: the folder {str(out.parent)!r} does not exist")
     if "stage" in raw:
@@ -517,11 +524,11 @@ def _export(args) -> int:
     else:
         experiment, controller = load_result(folder)
         trajectory = experiment.task.simulate(controller, positions=True)
-    from ..export import bvh
+    from .. import export
 
     try:
-        bvh(trajectory, experiment.task.body, out)
-    except ValueError as e:
+        getattr(export, args.format)(trajectory, experiment.task.body, out)
+    except (ValueError, ImportError) as e:
         raise ConfigError(f"{folder}: {e}") from None
     print(out)
     return 0

@@ -762,17 +762,19 @@ def replay_stages(
     return trajectories
 
 
-EXPORT_FILES = {"bvh": "motion.bvh"}  # the file each export format writes in a results folder
+EXPORT_FILES = {
+    "bvh": "motion.bvh",
+    "usd": "motion.usd",
+}  # the file each export format writes in a results folder
 
 
 def write_exports(formats: Sequence[str], trajectory: Trajectory, body, folder: Path) -> None:
     """Write the motion in each of `formats` (`[output] export`) into a results folder
     (`EXPORT_FILES` names the files). The trajectory must hold its positions."""
-    from ..export import bvh
+    from .. import export
 
     for name in formats:
-        if name == "bvh":
-            bvh(trajectory, body, folder / EXPORT_FILES["bvh"])
+        getattr(export, name)(trajectory, body, folder / EXPORT_FILES[name])
 
 
 def fitness_of(task, controller) -> float:
