@@ -10,7 +10,7 @@ import tomli_w
 
 import jaxmotion as jm
 from jaxmotion._cli.compose import _check_shared, parse_compose_config, phase_trajectories
-from jaxmotion._cli.main import _compose, _parser
+from jaxmotion._cli.main import _compose, _export, _parser
 from jaxmotion.experiment import ConfigError, controller_from_dict, parse_config, run_experiment
 
 COMPONENT = {
@@ -22,6 +22,7 @@ COMPONENT = {
     "search": {"algorithm": "serial_search", "climbers": 2, "generations": 2},
     "output": {"animation": False},
 }
+EXPORT_ATOL = 1e-5  # m: the exported motion is the scored one (float32 rounding)
 STAGE_ATOL = 1e-5  # m: a phase replays its stage (float32 rounding of the saved samples)
 SCRIPT = """
 # the kick should last 40 ticks, then the roll travels
@@ -93,6 +94,15 @@ def test_compose_writes_a_searched_composite(components, tmp_path):
     np.testing.assert_allclose(sequence.transitions, best["transitions"])
     again = parse_compose_config(tomllib.loads((folder / "config.toml").read_text()))
     assert again.config == tomllib.loads((folder / "config.toml").read_text())
+    # `export` rebuilds the composite's best motion from the folder: one BVH frame per
+    # tick, the motion the search scored (the fast path's samples).
+    args = _parser().parse_args(["export", str(folder), "--format", "bvh"])
+    assert _export(args) == 0
+    motion = again.composite.trajectory(best["transitions"])
+    text = (folder / "motion.bvh").read_text()
+    assert f"Frames: {len(motion.ts)}" in text
+    recorded = again.composite.trajectory(best["transitions"], positions=True)
+    np.testing.assert_allclose(recorded.points, motion.points, atol=EXPORT_ATOL)
 
 
 def test_phase_cuts_rejoin_the_motion(components):
@@ -222,3 +232,18 @@ def test_every_phase_is_checked_before_a_component_runs(components):
     with pytest.raises(ConfigError, match=r'\[\[phase\]\] 2 \("roll"\): results = .no/such/folder'):
         parse_compose_config(raw, run_component=ran.append)
     assert ran == []
+
+
+def test_a_component_run_first_is_recorded_by_its_results_folder(components):
+    """The resolved config names the folder a phase's config ran into (not the config), so
+    the composite's own config.toml composes the same controllers without running them."""
+    raw = compose_raw(components)
+    raw["phase"][0] = {"name": "kick", "config": "configs/default.toml", "ticks": 50}
+    compose = parse_compose_config(raw, run_component=lambda path: components[0])
+    assert compose.config["phase"][0] == {
+        "name": "kick",
+        "ticks": 50,
+        "results": str(components[0]),
+    }
+    again = parse_compose_config(compose.config)
+    assert again.config == compose.config

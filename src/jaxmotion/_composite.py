@@ -124,12 +124,16 @@ class Composite(eqx.Module):
         return execution.run(_fitness, self, _sequences(self.controllers, transitions))
 
     def trajectory(
-        self, transitions: Float[ArrayLike, " K-1"], *, solver: SolverName = "symplectic"
+        self,
+        transitions: Float[ArrayLike, " K-1"],
+        *,
+        solver: SolverName = "symplectic",
+        positions: bool = False,
     ) -> Trajectory:
         """The motion with these transitions (the search's own simulation with the
-        default solver)."""
+        default solver; `positions`: also save the body's positions, for export)."""
         transitions = jnp.asarray(transitions, dtype=float)
-        if solver == "symplectic":
+        if solver == "symplectic" and not positions:
             one = _sequences(self.controllers, transitions[None])
             out = execution.run(_trajectories, self, one)
             return jax.tree_util.tree_map(lambda a: a[0], out)
@@ -143,6 +147,7 @@ class Composite(eqx.Module):
             control_dt=self.control_dt,
             solver=solver,
             initial_state=self.initial_state,
+            positions=positions,
         )
 
     def values(self, transitions: Float[ArrayLike, " K-1"]) -> dict[str, float]:

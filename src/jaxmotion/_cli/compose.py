@@ -138,7 +138,7 @@ def parse_compose_config(
         else:
             _component(where, Path(cfg["results"]), cfg.get("stage"))
     ran: dict[Path, Path] = {}  # a multi-stage config named by several phases runs once
-    phases = []
+    phases, recorded = [], []
     for i, cfg in enumerate(phases_cfg, start=1):
         where = f'[[phase]] {i} ("{cfg["name"]}")'
         if "config" in cfg:
@@ -152,6 +152,9 @@ def parse_compose_config(
             folder = Path(cfg["results"])
         experiment, controller = _component(where, folder, cfg.get("stage"))
         phases.append((cfg["name"], experiment, controller))
+        # The resolved config names the folder a component config ran into, so that the
+        # results folder's config.toml composes the same controllers again.
+        recorded.append({k: v for k, v in cfg.items() if k != "config"} | {"results": str(folder)})
     _check_shared(phases)
     first = phases[0][1]
     dt = first.task.dt
@@ -179,7 +182,7 @@ def parse_compose_config(
         )
     resolved = {
         **head,
-        "phase": phases_cfg,
+        "phase": recorded,
         "script": script_cfg,
         "search": search_cfg,
         "simulation": {"duration": duration},

@@ -504,7 +504,15 @@ def _export(args) -> int:
         )
     folder = Path(args.results)
     raw = results_config(folder)
-    body = raw.get("body", {})
+    composite = None
+    if "phase" in raw:  # a composite's folder (`compose`): its phases' body
+        from .compose import parse_compose_config
+
+        composite = parse_compose_config(raw).composite
+        body = dict(results_config(Path(raw["phase"][0]["results"])).get("body", {}))
+        body.pop("stage", None)
+    else:
+        body = raw.get("body", {})
     if args.format == "bvh" and not (isinstance(body, dict) and "figure" in body):
         kind = body.get("lattice", "cube") if isinstance(body, dict) else body
         raise ConfigError(
@@ -516,7 +524,11 @@ def _export(args) -> int:
         raise ConfigError(f"--out = {args.out!r}; allowed: a USD file (.usd, .usda or .usdc)")
     if not out.parent.is_dir():
         raise ConfigError(f"--out = {args.out!r}: the folder {str(out.parent)!r} does not exist")
-    if "stage" in raw:
+    if composite is not None:
+        best = json.loads((folder / "best_transitions.json").read_text())["transitions"]
+        trajectory = composite.trajectory(best, positions=True)
+        figure = composite.body
+    elif "stage" in raw:
         experiment, controllers = load_stages(folder)
         trajectory = concatenate_trajectories(
             replay_stages(experiment, controllers, positions=True)
@@ -524,10 +536,12 @@ def _export(args) -> int:
     else:
         experiment, controller = load_result(folder)
         trajectory = experiment.task.simulate(controller, positions=True)
+    if composite is None:
+        figure = experiment.task.body
     from .. import export
 
     try:
-        getattr(export, args.format)(trajectory, experiment.task.body, out)
+        getattr(export, args.format)(trajectory, figure, out)
     except (ValueError, ImportError) as e:
         raise ConfigError(f"{folder}: {e}") from None
     print(out)
