@@ -131,27 +131,29 @@ def parse_compose_config(
     """`read_compose_config` on a config already read from TOML."""
     head, phases_cfg, script_cfg, search_cfg, simulation_cfg, output_cfg = _tables(raw, name)
     ticks = [c["ticks"] for c in phases_cfg]
-    for i, cfg in enumerate(phases_cfg, start=1):  # every phase checked before any runs
-        where = f'[[phase]] {i} ("{cfg["name"]}")'
+    # Every phase is checked before any component runs: the results folders loaded (once),
+    # the configs read.
+    wheres = [f'[[phase]] {i} ("{cfg["name"]}")' for i, cfg in enumerate(phases_cfg, start=1)]
+    loaded = {}
+    for i, (where, cfg) in enumerate(zip(wheres, phases_cfg, strict=True)):
         if "config" in cfg:
             _component_config(where, cfg)
         else:
-            _component(where, Path(cfg["results"]), cfg.get("stage"))
+            loaded[i] = _component(where, Path(cfg["results"]), cfg.get("stage"))
     ran: dict[Path, Path] = {}  # a multi-stage config named by several phases runs once
     phases, recorded = [], []
-    for i, cfg in enumerate(phases_cfg, start=1):
-        where = f'[[phase]] {i} ("{cfg["name"]}")'
+    for i, (where, cfg) in enumerate(zip(wheres, phases_cfg, strict=True)):
         if "config" in cfg:
-            source = Path(cfg["config"])
+            source = Path(cfg["config"]).resolve()
             if run_component is None:
                 raise ConfigError(f"{where}: config = {cfg['config']!r} would need a run")
-            if source.resolve() not in ran:
-                ran[source.resolve()] = run_component(source)
-            folder = ran[source.resolve()]
+            if source not in ran:
+                ran[source] = run_component(Path(cfg["config"]))
+            folder = ran[source]
+            loaded[i] = _component(where, folder, cfg.get("stage"))
         else:
             folder = Path(cfg["results"])
-        experiment, controller = _component(where, folder, cfg.get("stage"))
-        phases.append((cfg["name"], experiment, controller))
+        phases.append((cfg["name"], *loaded[i]))
         # The resolved config names the folder a component config ran into, so that the
         # results folder's config.toml composes the same controllers again.
         recorded.append({k: v for k, v in cfg.items() if k != "config"} | {"results": str(folder)})
@@ -278,14 +280,13 @@ def _stage_of(where: str, experiment, stage: str | None, source: str):
 def _component(where: str, folder: Path, stage: str | None):
     """A phase's experiment and controller from a results folder of `run` (a single
     search, or the named stage of a multi-stage run)."""
-    from .results import _read_config, controller_from_dict, load_stages
+    from .results import _read_config, load_result, load_stages
 
     source = f"results = {str(folder)!r}"
     try:
         experiment = _stage_of(where, _read_config(folder), stage, source)
         if stage is None:
-            data = json.loads((folder / "best_controller.json").read_text())
-            return experiment, controller_from_dict(data)
+            return load_result(folder)
         whole, controllers = load_stages(folder)
         return experiment, controllers[[s.name for s in whole.stages].index(stage)]
     except (FileNotFoundError, ValueError) as e:

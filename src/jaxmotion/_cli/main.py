@@ -504,13 +504,12 @@ def _export(args) -> int:
         )
     folder = Path(args.results)
     raw = results_config(folder)
-    composite = None
-    if "phase" in raw:  # a composite's folder (`compose`): its phases' body
+    compose = None
+    if "phase" in raw:  # a composite's folder (`compose`): its phases' shared body
         from .compose import parse_compose_config
 
-        composite = parse_compose_config(raw).composite
-        body = dict(results_config(Path(raw["phase"][0]["results"])).get("body", {}))
-        body.pop("stage", None)
+        compose = parse_compose_config(raw)
+        body = compose.phases[0][1].config["body"]
     else:
         body = raw.get("body", {})
     if args.format == "bvh" and not (isinstance(body, dict) and "figure" in body):
@@ -524,19 +523,19 @@ def _export(args) -> int:
         raise ConfigError(f"--out = {args.out!r}; allowed: a USD file (.usd, .usda or .usdc)")
     if not out.parent.is_dir():
         raise ConfigError(f"--out = {args.out!r}: the folder {str(out.parent)!r} does not exist")
-    if composite is not None:
+    if compose is not None:
         best = json.loads((folder / "best_transitions.json").read_text())["transitions"]
-        trajectory = composite.trajectory(best, positions=True)
-        figure = composite.body
+        trajectory = compose.composite.trajectory(best, positions=True)
+        figure = compose.composite.body
     elif "stage" in raw:
         experiment, controllers = load_stages(folder)
         trajectory = concatenate_trajectories(
             replay_stages(experiment, controllers, positions=True)
         )
+        figure = experiment.task.body
     else:
         experiment, controller = load_result(folder)
         trajectory = experiment.task.simulate(controller, positions=True)
-    if composite is None:
         figure = experiment.task.body
     from .. import export
 
