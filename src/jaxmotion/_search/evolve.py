@@ -13,12 +13,11 @@ from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 from .._control.base import AbstractController
 from .._task import Task
 from .hill_climb import (
-    _STARTS,
     SearchResult,
     _check_positive_int,
     _check_resume,
-    _fold,
     _sample,
+    _start_key,
     finite_fitness,
     finite_members,
     ranked_result,
@@ -122,7 +121,7 @@ class Evolve(eqx.Module):
         """Draw and evaluate the first generation. Returns the state and the fitness of the
         controllers in the order they were drawn."""
         population, next_key = _sample(self, task, key)
-        starts = None if task.robustness is None else jr.fold_in(next_key, _STARTS)
+        starts = _start_key(task, next_key)
         fitness = task.evaluate(population, chunk=self.chunk, key=starts)
         return _first(population, fitness, next_key), fitness
 
@@ -160,12 +159,7 @@ class Evolve(eqx.Module):
         """ask, evaluate (one call), tell. Returns the new state and the fitness of this
         generation's `4 size / 5` evaluations."""
         children = self.ask(task, state)
-        if task.robustness is None:
-            starts = None
-        elif task.robustness.common:  # the starts `init` drew, at every generation
-            starts = jr.fold_in(state.key, _STARTS)
-        else:
-            starts = _fold(state.key, state.generation)
+        starts = _start_key(task, state.key, state.generation)
         fitness = task.evaluate(children, chunk=self.chunk, key=starts)
         return self.tell(state, children, fitness), fitness
 

@@ -68,7 +68,7 @@ class ParallelHillClimb(eqx.Module):
         the initial controllers in the order they were drawn."""
         population, next_key = _sample(self, task, key)
         # In calls of the search's batch size, so that the steps reuse this compilation.
-        starts = None if task.robustness is None else jr.fold_in(next_key, _STARTS)
+        starts = _start_key(task, next_key)
         fitness = task.evaluate(population, chunk=self.batch, key=starts)
         return _rank(population, fitness, next_key), fitness
 
@@ -96,7 +96,7 @@ class ParallelHillClimb(eqx.Module):
         """ask, evaluate, tell. Returns the new state and the fitness of this step's `batch`
         evaluations."""
         children = self.ask(task, state)
-        fitness = task.evaluate(children, key=_start_key(task, state))
+        fitness = task.evaluate(children, key=_start_key(task, state.key, state.step))
         return self.tell(state, children, fitness, num_valid), fitness
 
 
@@ -105,14 +105,15 @@ class ParallelHillClimb(eqx.Module):
 _STARTS = 2**31 - 1
 
 
-def _start_key(task: Task, state: HillClimbState):
-    """The key of this step's random starts (shared by its batch), `None` without
-    robustness."""
+def _start_key(task: Task, key, step=None):
+    """The key of the random starts of the initial set (`step` None) or of a step (shared
+    by its evaluations; with `Robustness.common`, the initial set's at every step), `None`
+    without robustness. `key` is the state's."""
     if task.robustness is None:
         return None
-    if task.robustness.common:  # the starts `init` drew, at every step
-        return jr.fold_in(state.key, _STARTS)
-    return _fold(state.key, state.step)
+    if step is None or task.robustness.common:
+        return jr.fold_in(key, _STARTS)
+    return _fold(key, step)
 
 
 @eqx.filter_jit
