@@ -147,6 +147,14 @@ def _parser() -> argparse.ArgumentParser:
     compose.add_argument("--no-animation", action="store_true", help="do not write motion.gif")
     compose.add_argument("--quiet", action="store_true", help="no progress or summary")
     run_options(p)  # `python -m jaxmotion [options]` runs the default experiment
+    for q in (p, *sub.choices.values()):
+        q.add_argument(
+            "--no-compilation-cache",
+            action="store_true",
+            help="do not keep compiled programs in the persistent cache (default: kept in "
+            "$JAXMOTION_COMPILATION_CACHE, else ~/.cache/jaxmotion/jax, so the next run "
+            "starts warm; see the README's Performance section)",
+        )
     return p
 
 
@@ -656,7 +664,15 @@ def main(argv: list[str] | None = None) -> int:
     from .._devices import use_cpu_cores
 
     use_cpu_cores()
+    from .cache import use_compilation_cache
     from .config import ConfigError, default_config_path, search_evaluations
+
+    if not args.no_compilation_cache:
+        try:
+            use_compilation_cache()
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
 
     try:
         _check_options(args)
