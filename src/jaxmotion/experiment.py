@@ -6,6 +6,8 @@ This is the config/IO layer (the library core never touches disk); `python -m ja
 is built on it.
 """
 
+from ._cli.cache import default_cache_dir as default_cache_dir
+from ._cli.cache import use_compilation_cache as use_compilation_cache
 from ._cli.compose import ComposeConfig as ComposeConfig
 from ._cli.compose import check_compose_config as check_compose_config
 from ._cli.compose import parse_compose_config as parse_compose_config
@@ -40,6 +42,7 @@ __all__ = [
     "concatenate_trajectories",
     "controller_from_dict",
     "controller_to_dict",
+    "default_cache_dir",
     "default_config_path",
     "load_config",
     "load_result",
@@ -56,4 +59,5 @@ __all__ = [
     "run_experiment",
     "run_sequence_check",
     "start_where",
+    "use_compilation_cache",
 ]
