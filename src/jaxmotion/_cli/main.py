@@ -23,6 +23,10 @@ jaxmotion: automatic motion synthesis for animated characters.
                                            on equal budgets, over several seeds
   python -m jaxmotion compose CONFIG.toml  a composite motion: controllers found earlier, in
                                            turn, their transitions searched (see configs/)
+  python -m jaxmotion gallery RESULTS... [--out PAGE.html]
+                                           one self-contained HTML page of results folders
+                                           (or folders of them): motions, learning plots,
+                                           checks and key figures, sortable and filterable
 
 A run writes a results folder: config.toml (resolved), best_controller.json, history.csv (one
 row per evaluation), learning_plot.png, motion.gif and summary.json. Fitness is maximised.
@@ -146,6 +150,24 @@ def _parser() -> argparse.ArgumentParser:
     )
     compose.add_argument("--no-animation", action="store_true", help="do not write motion.gif")
     compose.add_argument("--quiet", action="store_true", help="no progress or summary")
+    gallery = sub.add_parser(
+        "gallery",
+        help="one HTML page of results folders: motions, learning plots, checks, figures",
+        description="Write one self-contained HTML page (images embedded, no network) with, "
+        "for every results folder given (a run, a multi-stage run, a compose; or a folder "
+        "holding results folders, e.g. a sweep), its motion.gif, learning plot, check "
+        "verdict and key figures, under a sortable, filterable table. Nothing is simulated.",
+    )
+    gallery.add_argument(
+        "results", nargs="+", help="results folders, or folders holding results folders"
+    )
+    gallery.add_argument(
+        "--out",
+        dest="page",
+        metavar="PAGE.html",
+        default="gallery.html",
+        help="the page to write (default: gallery.html in the working directory)",
+    )
     run_options(p)  # `python -m jaxmotion [options]` runs the default experiment
     for q in (p, *sub.choices.values()):
         q.add_argument(
@@ -555,6 +577,14 @@ def _export(args) -> int:
     return 0
 
 
+def _gallery(args) -> int:
+    from .gallery import write_gallery
+
+    page, count = write_gallery(args.results, args.page)
+    print(f"{page} ({count} result{'s' if count != 1 else ''})")
+    return 0
+
+
 def _compare(args) -> int:
     from .compare import CompareSettings, run_compare
     from .config import ConfigError
@@ -699,6 +729,8 @@ def main(argv: list[str] | None = None) -> int:
             return _compose(args)
         if args.command == "export":
             return _export(args)
+        if args.command == "gallery":
+            return _gallery(args)
         return _replay(args)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
