@@ -326,3 +326,19 @@ def test_the_cli_exits_2_naming_a_path_that_is_not_a_results_folder(tmp_path):
     assert run.stderr.startswith(f"error: {missing}: not a results folder (no such folder)")
     assert "holds config.toml and summary.json" in run.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_of_results_lists_them_by_name_numbers_as_numbers(tmp_path):
+    """A folder holding results folders (a sweep's) stands for them: by name, seed2 before
+    seed10; hidden folders (a running search's, a sweep task's), folders without
+    config.toml and files skipped; a folder named twice (itself and through its parent)
+    listed once."""
+    from jaxmotion._cli.gallery import find_results
+
+    for name in ("run-seed10", "run-seed2", ".run-seed3.task", "sweep.md-dir"):
+        (tmp_path / name).mkdir()
+    for name in ("run-seed10", "run-seed2", ".run-seed3.task"):
+        (tmp_path / name / "config.toml").write_text('name = "run"\n')
+    (tmp_path / "sweep.md").write_text("| table |\n")
+    found = find_results([tmp_path, tmp_path / "run-seed2"])
+    assert found == [tmp_path / "run-seed2", tmp_path / "run-seed10"]

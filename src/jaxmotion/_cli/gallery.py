@@ -70,10 +70,16 @@ def _is_results_folder(path: Path) -> bool:
     return (path / "config.toml").is_file()
 
 
+def _natural(path: Path) -> list:
+    """A name's sort key with its numbers as numbers: a sweep's seed2 before seed10."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
+
+
 def find_results(paths: Sequence[str | Path]) -> list[Path]:
     """The results folders `paths` name: each path a results folder, or a folder holding
-    results folders (its direct subfolders with a `config.toml`, by name; hidden ones, such
-    as a running search's `.NAME.partial/`, are skipped). A folder named twice is listed
+    results folders (its direct subfolders with a `config.toml`, by name, numbers in names
+    compared as numbers; hidden ones, such as a running search's `.NAME.partial/` or a
+    sweep's `.LABEL.task/`, are skipped). A folder named twice is listed
     once.
 
     **Raises:** `ConfigError` naming a path that is neither (and what a results folder
@@ -91,9 +97,12 @@ def find_results(paths: Sequence[str | Path]) -> list[Path]:
             folders = [path]
         else:
             folders = sorted(
-                p
-                for p in path.iterdir()
-                if p.is_dir() and not p.name.startswith(".") and _is_results_folder(p)
+                (
+                    p
+                    for p in path.iterdir()
+                    if p.is_dir() and not p.name.startswith(".") and _is_results_folder(p)
+                ),
+                key=_natural,
             )
             if not folders:
                 raise ConfigError(
@@ -499,7 +508,8 @@ _SCRIPT = """
           if (isNaN(x) || isNaN(y)) { return isNaN(x) - isNaN(y); }  // blanks last
           return ascending ? x - y : y - x;
         }
-        return ascending ? x.localeCompare(y) : y.localeCompare(x);
+        const order = x.localeCompare(y, undefined, {numeric: true});  // seed2 < seed10
+        return ascending ? order : -order;
       });
       rows.forEach(function (row) {
         body.appendChild(row);
