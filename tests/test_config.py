@@ -204,7 +204,7 @@ def test_failed_or_interrupted_runs_leave_nothing_behind(tmp_path, monkeypatch):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(results, "parallel_hill_climb", interrupted)
+    monkeypatch.setattr(results, "drive", interrupted)
     with pytest.raises(KeyboardInterrupt):
         run_experiment(experiment, progress=False)
     assert list((tmp_path / "results").iterdir()) == []

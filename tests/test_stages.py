@@ -306,7 +306,7 @@ def test_an_interrupted_multi_stage_run_leaves_nothing_behind(tmp_path, monkeypa
         staged(output={"directory": str(tmp_path / "results"), "animation": False})
     )
     searches = []
-    search = results.serial_search
+    search = results.drive
 
     def interrupted_second(*args, **kwargs):
         searches.append(1)
@@ -314,7 +314,7 @@ def test_an_interrupted_multi_stage_run_leaves_nothing_behind(tmp_path, monkeypa
             raise KeyboardInterrupt
         return search(*args, **kwargs)
 
-    monkeypatch.setattr(results, "serial_search", interrupted_second)
+    monkeypatch.setattr(results, "drive", interrupted_second)
     with pytest.raises(KeyboardInterrupt):
         run_experiment(experiment, progress=False)
     assert len(searches) == 2 and list((tmp_path / "results").iterdir()) == []

@@ -50,11 +50,17 @@ from ._objective.script import script_measures as script_measures
 from ._search.evolve import Evolve as Evolve
 from ._search.evolve import EvolveState as EvolveState
 from ._search.evolve import evolve as evolve
+from ._search.evosax import Evosax as Evosax
+from ._search.evosax import EvosaxState as EvosaxState
 from ._search.hill_climb import HillClimbState as HillClimbState
 from ._search.hill_climb import ParallelHillClimb as ParallelHillClimb
 from ._search.hill_climb import SearchResult as SearchResult
 from ._search.hill_climb import parallel_hill_climb as parallel_hill_climb
 from ._search.history import History as History
+from ._search.protocol import SEARCHERS as SEARCHERS
+from ._search.protocol import AbstractSearcher as AbstractSearcher
+from ._search.protocol import drive as drive
+from ._search.protocol import register as register_searcher
 from ._search.refine import RefineHistory as RefineHistory
 from ._search.refine import RefineResult as RefineResult
 from ._search.refine import Smoothing as Smoothing
@@ -95,16 +101,20 @@ __all__ = [
     "MUTATION_PROBABILITIES",
     "PERTURBATIONS",
     "REFLEX_NAMES",
+    "SEARCHERS",
     "AbstractBody",
     "AbstractController",
     "AbstractControllerSpace",
     "AbstractDynamics",
+    "AbstractSearcher",
     "BSRState",
     "BodyState",
     "Composite",
     "ControllerState",
     "Evolve",
     "EvolveState",
+    "Evosax",
+    "EvosaxState",
     "Figure",
     "FigurePositions",
     "FigureVelocities",
@@ -144,6 +154,7 @@ __all__ = [
     "checks",
     "closeness",
     "deform",
+    "drive",
     "evolve",
     "export",
     "figures",
@@ -154,6 +165,7 @@ __all__ = [
     "objective_terms",
     "parallel_hill_climb",
     "refine",
+    "register_searcher",
     "register_term",
     "script_measures",
     "serial_search",

@@ -33,11 +33,8 @@ import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 
-from .._search.evolve import EvolveState
-from .._search.hill_climb import HillClimbState
 from .._search.history import History
-from .._search.serial import SerialSearchState
-from .config import ConfigError, Experiment
+from .config import ConfigError, Experiment, make_searcher
 
 MAGIC = b"jaxmotion-checkpoint 1\n"
 FORMAT = 1
@@ -102,6 +99,56 @@ def _searches(experiment: Experiment) -> tuple[Experiment, ...]:
     return experiment.stages or (experiment,)
 
 
+def state_to_bytes(state, history) -> tuple[bytes, dict[str, Any]]:
+    """One search's state and history (a `History`, or a tuple of one per run) as the
+    checkpoint's bytes, and the header part that describes them (`state_from_bytes` reads
+    them back)."""
+    tree, keys = _payload(state, history)
+    buffer = io.BytesIO()
+    eqx.tree_serialise_leaves(buffer, tree)
+    histories = history if isinstance(history, tuple) else (history,)
+    part = {
+        "evaluations": int(sum(len(h) for h in histories)),
+        "leaves": [
+            [list(np.shape(a)), str(np.asarray(a).dtype)] for a in jax.tree_util.tree_leaves(tree)
+        ],
+        "keys": [i for i, k in enumerate(keys) if k],
+        "key_impl": [str(jr.key_impl(a)) for a in jax.tree_util.tree_leaves(state) if _is_key(a)],
+        "bytes": len(buffer.getvalue()),
+    }
+    return buffer.getvalue(), part
+
+
+def state_from_bytes(template, part: dict[str, Any], payload: bytes, runs: int | None):
+    """The `(state, history)` that `state_to_bytes` wrote, given a state of the same
+    structure (`template`: a searcher's `template(task)`) and the number of histories
+    (`runs`: one per run, or `None` for a single `History`).
+
+    **Raises:** `ValueError` when the bytes do not fit the template."""
+    shapes = part["leaves"]
+    histories = 1 if runs is None else runs
+    state_leaves = len(shapes) - 2 * histories
+    treedef = jax.tree_util.tree_structure(template)
+    if treedef.num_leaves != state_leaves:
+        raise ValueError(f"{len(shapes)} leaves")
+    state_like = [jax.ShapeDtypeStruct(tuple(s), jnp.dtype(d)) for s, d in shapes[:state_leaves]]
+    history_like = [np.empty(tuple(s), dtype=d) for s, d in shapes[state_leaves:]]
+    like = (
+        jax.tree_util.tree_unflatten(treedef, state_like),
+        [tuple(history_like[2 * i : 2 * i + 2]) for i in range(histories)],
+    )
+    state, arrays = eqx.tree_deserialise_leaves(io.BytesIO(payload), like)
+    leaves, treedef = jax.tree_util.tree_flatten(state)
+    impls = iter(part.get("key_impl", []))
+    leaves = [
+        jr.wrap_key_data(a, impl=next(impls)) if i in part["keys"] else a
+        for i, a in enumerate(leaves)
+    ]
+    state = jax.tree_util.tree_unflatten(treedef, leaves)
+    history = tuple(History(f, s) for f, s in arrays)
+    return state, (history if runs is not None else history[0])
+
+
 def save_checkpoint(path: Path, experiment: Experiment, searches) -> None:
     """Write `searches`, a `(state, history)` pair for each search the run has begun (a
     single search: one; a multi-stage run: each stage so far, the last one in progress;
@@ -109,26 +156,9 @@ def save_checkpoint(path: Path, experiment: Experiment, searches) -> None:
     it, flushed, then `os.replace`)."""
     payload, parts = b"", []
     for (state, history), search in zip(searches, _searches(experiment), strict=False):
-        tree, keys = _payload(state, history)
-        buffer = io.BytesIO()
-        eqx.tree_serialise_leaves(buffer, tree)
-        histories = history if isinstance(history, tuple) else (history,)
-        parts.append(
-            {
-                "algorithm": search.search["algorithm"],
-                "evaluations": int(sum(len(h) for h in histories)),
-                "leaves": [
-                    [list(np.shape(a)), str(np.asarray(a).dtype)]
-                    for a in jax.tree_util.tree_leaves(tree)
-                ],
-                "keys": [i for i, k in enumerate(keys) if k],
-                "key_impl": [
-                    str(jr.key_impl(a)) for a in jax.tree_util.tree_leaves(state) if _is_key(a)
-                ],
-                "bytes": len(buffer.getvalue()),
-            }
-        )
-        payload += buffer.getvalue()
+        data, part = state_to_bytes(state, history)
+        parts.append({"algorithm": search.search["algorithm"], **part})
+        payload += data
     header = {
         "format": FORMAT,
         **_versions(),
@@ -175,18 +205,6 @@ def read_header(path: Path) -> tuple[dict[str, Any], bytes]:
     return header, payload
 
 
-def _template(experiment: Experiment, algorithm: str, motion: bool):
-    """A state of the experiment's search with placeholder leaves: its tree structure."""
-    task = experiment.task
-    population = eqx.filter_eval_shape(lambda: task.sample(1, key=jr.key(0)))
-    x = jax.ShapeDtypeStruct((), jnp.float32)
-    if algorithm == "serial_search":
-        return SerialSearchState(population, x, x, x, x, x if motion else None)
-    if algorithm == "evolve":
-        return EvolveState(population, x, x, x, x, x, x)
-    return HillClimbState(population, x, x, x, x)
-
-
 def load_checkpoint(path: Path, experiment: Experiment) -> list[tuple[Any, Any]]:
     """The `(state, history)` of each search a checkpoint of `experiment` holds (a single
     search: one; a multi-stage run: each stage begun, in order; see `save_checkpoint`).
@@ -229,33 +247,9 @@ def _restore(experiment: Experiment, header: dict[str, Any], payload: bytes):
     algorithm = experiment.search["algorithm"]
     if header["algorithm"] != algorithm:
         raise ValueError(f"a {header['algorithm']} search")
-    shapes = header["leaves"]
-    seeds = experiment.search.get("runs") if algorithm == "serial_search" else None
-    histories = 1 if seeds is None else seeds
-    state_leaves = len(shapes) - 2 * histories
-    for motion in (False, True):
-        template = _template(experiment, algorithm, motion)
-        treedef = jax.tree_util.tree_structure(template)
-        if treedef.num_leaves == state_leaves:
-            break
-    else:
-        raise ValueError(f"{len(shapes)} leaves")
-    state_like = [jax.ShapeDtypeStruct(tuple(s), jnp.dtype(d)) for s, d in shapes[:state_leaves]]
-    history_like = [np.empty(tuple(s), dtype=d) for s, d in shapes[state_leaves:]]
-    like = (
-        jax.tree_util.tree_unflatten(treedef, state_like),
-        [tuple(history_like[2 * i : 2 * i + 2]) for i in range(histories)],
-    )
-    state, arrays = eqx.tree_deserialise_leaves(io.BytesIO(payload), like)
-    leaves, treedef = jax.tree_util.tree_flatten(state)
-    impls = iter(header.get("key_impl", []))
-    leaves = [
-        jr.wrap_key_data(a, impl=next(impls)) if i in header["keys"] else a
-        for i, a in enumerate(leaves)
-    ]
-    state = jax.tree_util.tree_unflatten(treedef, leaves)
-    history = tuple(History(f, s) for f, s in arrays)
-    return state, (history if seeds is not None else history[0])
+    searcher = make_searcher(experiment.search)[0]
+    runs = experiment.search["runs"] if searcher.per_run else None
+    return state_from_bytes(searcher.template(experiment.task), header, payload, runs)
 
 
 def find_checkpoint(path: Path, experiment: Experiment) -> Path:

@@ -1,5 +1,6 @@
 """`python -m jaxmotion compare`: stochastic search alone against stochastic search followed
-by gradient refinement, on equal numbers of simulations, over several seeds."""
+by gradient refinement, or any two searchers of the registry against each other, on equal
+numbers of simulations, over several seeds."""
 
 import datetime as _dt
 import json
@@ -15,8 +16,9 @@ import jax.random as jr
 import numpy as np
 
 from .._search.hill_climb import parallel_hill_climb
+from .._search.protocol import AbstractSearcher, SearchResult, drive
 from .._search.refine import Smoothing, gradient_cost, refine
-from .config import Experiment
+from .config import ConfigError, Experiment, make_searcher, search_evaluations
 
 
 @dataclass(frozen=True)
@@ -96,11 +98,6 @@ def run_compare(
     """Run the comparison and write its folder (atomically, like `run_experiment`):
     `compare.csv` (per seed and method, the best fitness), `compare.md` (the table),
     `compare.png` (best fitness against simulations spent) and `summary.json`."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     task = experiment.task
     k = min(settings.top_k, experiment.search["size"])
     probe = task.sample(k, key=jr.key(12345))  # a batch of the refined size, to time
@@ -114,80 +111,101 @@ def run_compare(
             progress(f"seed {seed}")
         results.append((seed, *compare_one(experiment, seed, settings, cost)))
 
+    a_best = [r[3] for r in results]
+    b_best = [r[4] for r in results]
+    lines = ["seed,method,best_fitness,simulations,gradient_steps"]
+    for seed, a, b, fa, fb, steps in results:
+        lines.append(f"{seed},search,{fa!r},{int(a[0][-1])},0")
+        lines.append(f"{seed},search+refine,{fb!r},{int(b[0][-1])},{steps}")
+    diffs = [fb - fa for fa, fb in zip(a_best, b_best, strict=True)]
+    table = [
+        f"{experiment.name}: best fitness over seeds {list(settings.seeds)} "
+        f"(equal budgets; a gradient step of {k} controllers counts as {k} x "
+        f"({cost} + 1) simulations)",
+        "",
+        "| method | median | min | max |",
+        "|---|---|---|---|",
+        _row("stochastic search", a_best),
+        _row(f"search ({settings.fraction:.0%}) + refine top {k}", b_best),
+        _row("difference (b - a)", diffs),
+    ]
+    summary = {
+        "name": experiment.name,
+        "seeds": list(settings.seeds),
+        "budget": experiment.search["evaluations"],
+        "fraction": settings.fraction,
+        "top_k": k,
+        "learning_rate": settings.learning_rate,
+        "smoothing": {
+            "regime_width": settings.smoothing.regime_width,
+            "friction_velocity": settings.smoothing.friction_velocity,
+        },
+        "gradient_cost_simulations": cost,
+        "search_best": a_best,
+        "refine_best": b_best,
+        "median_difference": statistics.median(diffs),
+        "refine_wins": sum(d > 0 for d in diffs),
+    }
+    curves = {
+        "stochastic search": [r[1] for r in results],
+        "search + refine": [r[2] for r in results],
+    }
+    title = f"{experiment.name}: stochastic search vs search + gradients"
+    return _write(experiment, directory, lines, table, curves, title, summary)
+
+
+def _row(name: str, values, *cells) -> str:
+    """A table row: the name, any other cells, then the median, min and max of `values`."""
+    middle = "".join(f" {c} |" for c in cells)
+    return (
+        f"| {name} |{middle} {statistics.median(values):.4g} | {min(values):.4g} | "
+        f"{max(values):.4g} |"
+    )
+
+
+def _write(
+    experiment: Experiment,
+    directory: str | Path | None,
+    lines: list[str],
+    table: list[str],
+    curves: dict[str, list[tuple[np.ndarray, np.ndarray]]],
+    title: str,
+    summary: dict,
+) -> Path:
+    """Write a comparison's folder atomically (a hidden temporary folder moved into place):
+    `compare.csv` (`lines`), `compare.md` (`table`), `compare.png` (each method's curves of
+    best fitness against simulations, one per seed) and `summary.json`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     out_root = Path(directory if directory is not None else experiment.output["directory"])
     out_root.mkdir(parents=True, exist_ok=True)
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     final = out_root / f"{experiment.name}-compare-{stamp}"
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=out_root))
     try:
-        a_best = [r[3] for r in results]
-        b_best = [r[4] for r in results]
-        lines = ["seed,method,best_fitness,simulations,gradient_steps"]
-        for seed, a, b, fa, fb, steps in results:
-            lines.append(f"{seed},search,{fa!r},{int(a[0][-1])},0")
-            lines.append(f"{seed},search+refine,{fb!r},{int(b[0][-1])},{steps}")
         (tmp / "compare.csv").write_text("\n".join(lines) + "\n")
-        diffs = [fb - fa for fa, fb in zip(a_best, b_best, strict=True)]
-
-        def row(name, values):
-            return (
-                f"| {name} | {statistics.median(values):.4g} | {min(values):.4g} | "
-                f"{max(values):.4g} |"
-            )
-
-        table = "\n".join(
-            [
-                f"{experiment.name}: best fitness over seeds {list(settings.seeds)} "
-                f"(equal budgets; a gradient step of {k} controllers counts as {k} x "
-                f"({cost} + 1) simulations)",
-                "",
-                "| method | median | min | max |",
-                "|---|---|---|---|",
-                row("stochastic search", a_best),
-                row(
-                    f"search ({settings.fraction:.0%}) + refine top {k}",
-                    b_best,
-                ),
-                row("difference (b - a)", diffs),
-            ]
-        )
-        (tmp / "compare.md").write_text(table + "\n")
+        (tmp / "compare.md").write_text("\n".join(table) + "\n")
         fig, ax = plt.subplots(figsize=(7, 4))
-        for label, idx, colour in (("stochastic search", 1, "C0"), ("search + refine", 2, "C1")):
-            for n, r in enumerate(results):
-                sims, best = r[idx]
+        for i, (label, runs) in enumerate(curves.items()):
+            for n, (sims, best) in enumerate(runs):
                 ax.step(
                     sims,
                     best,
                     where="post",
-                    color=colour,
+                    color=f"C{i}",
                     alpha=0.7,
                     label=label if n == 0 else None,
                 )
         ax.set_xlabel("simulations spent")
         ax.set_ylabel("best fitness so far")
-        ax.set_title(f"{experiment.name}: stochastic search vs search + gradients")
+        ax.set_title(title)
         ax.legend()
         fig.tight_layout()
         fig.savefig(tmp / "compare.png", dpi=110)
         plt.close(fig)
-        summary = {
-            "name": experiment.name,
-            "seeds": list(settings.seeds),
-            "budget": experiment.search["evaluations"],
-            "fraction": settings.fraction,
-            "top_k": k,
-            "learning_rate": settings.learning_rate,
-            "smoothing": {
-                "regime_width": settings.smoothing.regime_width,
-                "friction_velocity": settings.smoothing.friction_velocity,
-            },
-            "gradient_cost_simulations": cost,
-            "search_best": a_best,
-            "refine_best": b_best,
-            "median_difference": statistics.median(diffs),
-            "refine_wins": sum(d > 0 for d in diffs),
-        }
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         shutil.move(str(tmp), str(final))
     except BaseException:
@@ -196,4 +214,127 @@ def run_compare(
     return final
 
 
-__all__ = ["CompareSettings", "run_compare"]
+def budgeted(search: dict, budget: int) -> tuple[AbstractSearcher, int, int | None, int]:
+    """The searcher of a checked [search] section with its steps set so that it makes at most
+    `budget` simulations, initial set included: exactly `budget` for the searchers that can
+    end within a step (hill climbing, evosax), else the most whole generations that fit.
+    Returns the searcher, its steps, the evaluations that count of its last step, and the
+    simulations it will make.
+
+    **Raises:** `ConfigError` if even its initial set does not fit."""
+    searcher, _, _ = make_searcher(search)
+    if hasattr(searcher, "plan"):  # a budget of evaluations after the initial set
+        initial = search["size"]
+        if budget <= initial:
+            raise ConfigError(
+                f"compare: a budget of {budget} simulations leaves no step after the "
+                f"{search['algorithm']} initial set of {initial}; allowed: a larger budget"
+            )
+        steps, last = searcher.plan(budget - initial)
+        return searcher, steps, last, budget
+    one = dict(search, generations=1)
+    per_step = search_evaluations(dict(search, generations=2)) - search_evaluations(one)
+    initial = search_evaluations(one) - (per_step if search["algorithm"] == "serial_search" else 0)
+    steps = (budget - initial) // per_step
+    if search["algorithm"] == "evolve":  # its generations count the random first one
+        if steps < 1:
+            raise ConfigError(
+                f"compare: a budget of {budget} simulations leaves no generation of evolve "
+                f"after its first of {initial}; allowed: a larger budget"
+            )
+        return searcher, steps, None, initial + steps * per_step
+    if steps < 1:
+        raise ConfigError(
+            f"compare: a budget of {budget} simulations leaves no generation of "
+            f"{search['algorithm']} after its initial set of {initial}; allowed: a larger budget"
+        )
+    return searcher, steps, None, initial + steps * per_step
+
+
+def run_searcher(
+    experiment: Experiment, search: dict, budget: int, seed: int
+) -> tuple[SearchResult, int]:
+    """One search of `experiment`'s task by the searcher `search` describes, on at most
+    `budget` simulations, from `jax.random.key(seed)`. Returns the result and its
+    simulations."""
+    searcher, steps, last, used = budgeted(search, budget)
+    result = drive(searcher, experiment.task, key=jr.key(seed), steps=steps, last=last)
+    return result, used
+
+
+def search_label(search: dict) -> str:
+    """A searcher's name in a table: the algorithm, and the strategy for evosax."""
+    if search["algorithm"] == "evosax":
+        return f"evosax {search['strategy']}"
+    return search["algorithm"]
+
+
+def run_compare_searchers(
+    experiment: Experiment,
+    other: dict,
+    seeds: tuple[int, ...],
+    *,
+    directory: str | Path | None = None,
+    progress=None,
+) -> Path:
+    """Run `experiment`'s searcher against the searcher of the checked [search] section
+    `other`, both on `experiment`'s task and budget (its [search] section's simulations),
+    over `seeds`; write the folder (atomically): `compare.csv` (per seed and searcher, the
+    best fitness and the simulations made), `compare.md` (the table), `compare.png` (best
+    fitness against simulations) and `summary.json`."""
+    budget = search_evaluations(experiment.search)
+    searches = (experiment.search, other)
+    labels = [search_label(s) for s in searches]
+    if labels[0] == labels[1]:
+        labels = [f"{labels[0]} (config)", f"{labels[1]} (against)"]
+    for s in searches:
+        budgeted(s, budget)  # refuse a budget that does not fit before anything runs
+    runs = []
+    for seed in seeds:
+        row = []
+        for label, s in zip(labels, searches, strict=True):
+            if progress is not None:
+                progress(f"seed {seed}: {label}")
+            row.append(run_searcher(experiment, s, budget, seed))
+        runs.append(row)
+
+    lines = ["seed,searcher,best_fitness,simulations"]
+    for seed, row in zip(seeds, runs, strict=True):
+        for label, (result, used) in zip(labels, row, strict=True):
+            lines.append(f"{seed},{label},{result.best_fitness!r},{used}")
+    bests = [[row[i][0].best_fitness for row in runs] for i in range(2)]
+    diffs = [b - a for a, b in zip(*bests, strict=True)]
+    used = [runs[0][i][1] for i in range(2)]
+    table = [
+        f"{experiment.name}: best fitness over seeds {list(seeds)} (equal budgets: at most "
+        f"{budget} simulations each)",
+        "",
+        "| searcher | simulations | median | min | max |",
+        "|---|---|---|---|---|",
+        _row(labels[0], bests[0], used[0]),
+        _row(labels[1], bests[1], used[1]),
+        _row("difference (b - a)", diffs, ""),
+    ]
+    summary = {
+        "name": experiment.name,
+        "seeds": list(seeds),
+        "budget": budget,
+        "searchers": labels,
+        "search": [dict(s) for s in searches],
+        "simulations": used,
+        "best": bests,
+        "median_difference": statistics.median(diffs),
+        "b_wins": sum(d > 0 for d in diffs),
+    }
+    curves = {
+        label: [
+            (np.arange(1, len(row[i][0].history) + 1), row[i][0].history.best_so_far)
+            for row in runs
+        ]
+        for i, label in enumerate(labels)
+    }
+    title = f"{experiment.name}: {labels[0]} vs {labels[1]}"
+    return _write(experiment, directory, lines, table, curves, title, summary)
+
+
+__all__ = ["CompareSettings", "run_compare", "run_compare_searchers"]

@@ -18,6 +18,10 @@ from .._control.sense_bsr import SenseBSRSpace
 from .._control.spring_net import SpringNetSpace
 from .._control.time_bsr import TimeBSRSpace
 from .._objective.registry import Objective
+from .._search.evosax import INSTALL as EVOSAX_INSTALL
+from .._search.evosax import STRATEGIES as EVOSAX_STRATEGIES
+from .._search.evosax import require_evosax
+from .._search.protocol import SEARCHERS, AbstractSearcher
 from .._sim.robust import Robustness
 from .._sim.simulate import time_grid
 from .._task import Task
@@ -354,12 +358,14 @@ SIMULATION = {
     ),
 }
 
+SEARCHER_NAMES = tuple(SEARCHERS)
+
 SEARCH = {
     "algorithm": Key(
         "string",
         "parallel_hill_climb",
         lambda v: v in SEARCHES,
-        '"parallel_hill_climb", "serial_search" or "evolve"',
+        " or ".join([", ".join(f'"{n}"' for n in SEARCHER_NAMES[:-1]), f'"{SEARCHER_NAMES[-1]}"']),
     ),
     "evaluations": Key(
         "integer", 25_000, lambda v: 1 <= v <= MAX_EVALUATIONS, f">= 1, at most {MAX_EVALUATIONS}"
@@ -425,7 +431,46 @@ EVOLVE = {
     ),
 }
 
-SEARCHES = {"parallel_hill_climb": SEARCH, "serial_search": SERIAL_SEARCH, "evolve": EVOLVE}
+EVOSAX = {
+    "algorithm": SEARCH["algorithm"],
+    "strategy": Key(
+        "string",
+        "CMA_ES",
+        lambda v: v in EVOSAX_STRATEGIES,
+        "(an evosax strategy): " + ", ".join(f'"{n}"' for n in EVOSAX_STRATEGIES),
+    ),
+    "population": Key(
+        "integer",
+        32,
+        lambda v: 2 <= v <= MAX_BATCH,
+        f">= 2, at most {MAX_BATCH} (candidates per generation; even for Open_ES and PGPE)",
+    ),
+    "generations": Key(
+        "integer",
+        100,
+        lambda v: 1 <= v <= MAX_GENERATIONS,
+        f">= 1, at most {MAX_GENERATIONS} (after the random set)",
+    ),
+    "size": Key(
+        "integer",
+        100,
+        lambda v: 1 <= v <= MAX_BATCH,
+        f">= 1, at most {MAX_BATCH} (random controllers first; the best is the template)",
+    ),
+    "std_init": Key("number", 0.5, _positive, "> 0 (in units of each parameter's spread)"),
+    "learning_rate": Key(
+        "number", 0.05, _positive, "> 0 (Adam's, for Open_ES, SNES, xNES, PGPE, SimpleES)"
+    ),
+}
+
+SEARCHES = {
+    "parallel_hill_climb": SEARCH,
+    "serial_search": SERIAL_SEARCH,
+    "evolve": EVOLVE,
+    "evosax": EVOSAX,
+}
+"""The [search] keys of every searcher of the registry (`jaxmotion._search.protocol.SEARCHERS`),
+by its name."""
 
 ROBUSTNESS = {
     "samples": Key(
@@ -442,6 +487,23 @@ ROBUSTNESS = {
 }
 
 
+def _check_searcher(search: Mapping[str, Any]) -> None:
+    """The searcher's own checks (e.g. an even population for Open_ES) and its optional
+    dependency, as a `ConfigError` before anything compiles."""
+    if search["algorithm"] == "evosax":
+        try:
+            require_evosax()
+        except ImportError:
+            raise ConfigError(
+                '[search] algorithm = "evosax" needs the evosax package; install it with: '
+                f"{EVOSAX_INSTALL}"
+            ) from None
+    try:
+        make_searcher(search)
+    except ValueError as e:
+        raise ConfigError(f"[search] {e}") from None
+
+
 def _search_schema(table: Any) -> dict[str, Key]:
     algorithm = (
         table.get("algorithm", "parallel_hill_climb")
@@ -451,13 +513,49 @@ def _search_schema(table: Any) -> dict[str, Key]:
     return SEARCHES.get(algorithm, SEARCH) if isinstance(algorithm, str) else SEARCH
 
 
+def make_searcher(search: Mapping[str, Any]) -> tuple[AbstractSearcher, int, int | None]:
+    """The searcher a checked [search] section describes (from the registry), the steps it
+    makes after its `init`, and how many of the last step's evaluations count (`None`: all):
+    what `jaxmotion._search.protocol.drive` takes."""
+    name = search["algorithm"]
+    cls = SEARCHERS[name]
+    if name == "serial_search":
+        searcher = cls(
+            climbers=search["climbers"],
+            reseed_every=search["reseed_every"],
+            enrich=search["enrich"],
+            seeds=search["runs"],
+        )
+        return searcher, search["generations"], None
+    if name == "evolve":
+        return (
+            cls(size=search["size"], mutations=search["mutations"]),
+            search["generations"] - 1,
+            None,
+        )
+    if name == "evosax":
+        searcher = cls(
+            strategy=search["strategy"],
+            population=search["population"],
+            size=search["size"],
+            std_init=search["std_init"],
+            learning_rate=search["learning_rate"],
+        )
+        return searcher, search["generations"], None
+    searcher = cls(size=search["size"], batch=search["batch"])
+    return (searcher, *searcher.plan(search["evaluations"]))
+
+
 def search_evaluations(search: Mapping[str, Any]) -> int:
     """How many simulations a checked [search] section asks for (initial sets included)."""
     if search["algorithm"] == "serial_search":
-        return search["runs"] * search["climbers"] * (search["generations"] + 1)
+        rounds = 1 + search["enrich"] + search["generations"]
+        return search["runs"] * search["climbers"] * rounds
     if search["algorithm"] == "evolve":
         # Survivors keep their fitness: each later generation evaluates 4/5 of the size.
         return search["size"] + (search["generations"] - 1) * (search["size"] * 4 // 5)
+    if search["algorithm"] == "evosax":
+        return search["size"] + search["generations"] * search["population"]
     return search["size"] + search["evaluations"]
 
 
@@ -474,6 +572,12 @@ def search_plan(search: Mapping[str, Any]) -> str:
             f"evolution, {search['generations']} generations of {search['size']} "
             f"({search_evaluations(search)} evaluations), up to {search['mutations']} "
             "mutations per offspring"
+        )
+    if search["algorithm"] == "evosax":
+        return (
+            f"evosax {search['strategy']}, {search['size']} random controllers then "
+            f"{search['generations']} generations of {search['population']} "
+            f"({search_evaluations(search)} evaluations), std_init {search['std_init']}"
         )
     return (
         f"{search['evaluations']} evaluations, search set {search['size']}, batch {search['batch']}"
@@ -677,6 +781,8 @@ def _check_width(search: Mapping[str, Any], simulation: Mapping[str, Any]) -> No
         what = f"runs = {search['runs']} x climbers = {search['climbers']}"
     elif search["algorithm"] == "evolve":
         width, what = search["size"] * 4 // 5, f"4/5 of size = {search['size']}"
+    elif search["algorithm"] == "evosax":
+        width, what = search["population"], f"population = {search['population']}"
     else:
         width, what = search["batch"], f"batch = {search['batch']}"
     if width > MAX_BATCH:
@@ -717,6 +823,7 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
     search_table = raw.get("search", {})
     search_cfg = _read_section("[search]", search_table, _search_schema(search_table))
     _check_width(search_cfg, simulation_cfg)
+    _check_searcher(search_cfg)
     output_cfg = _read_section("[output]", raw.get("output", {}), OUTPUT)
     _check_export(output_cfg, body_kind, body_cfg)
     robust_cfg = None

@@ -113,12 +113,19 @@ def _parser() -> argparse.ArgumentParser:
     )
     compare = sub.add_parser(
         "compare",
-        help="stochastic search vs search + gradient refinement, equal budgets",
+        help="search vs search + gradient refinement, or two searchers, equal budgets",
         description="Run a config's search alone and search + refine (gradient ascent on "
-        "its best controllers) on equal numbers of simulations, over several seeds; write "
-        "a table (compare.md, compare.csv), a plot (compare.png) and summary.json.",
+        "its best controllers) on equal numbers of simulations, over several seeds; with "
+        "--against, the config's searcher against another one instead; write a table "
+        "(compare.md, compare.csv), a plot (compare.png) and summary.json.",
     )
     compare.add_argument("config")
+    compare.add_argument(
+        "--against",
+        metavar="TOML",
+        help="a TOML file whose [search] table is the second searcher (e.g. algorithm = "
+        '"evosax", strategy = "CMA_ES"), run on CONFIG\'s task and budget',
+    )
     compare.add_argument("--seeds", default="0,1,2", help="comma-separated (default 0,1,2)")
     compare.add_argument(
         "--fraction", type=float, default=0.5, help="share of the budget for the search"
@@ -608,6 +615,8 @@ def _compare(args) -> int:
             f"{args.config}: compare runs one search; this config has "
             f"{len(experiment.stages)} [[stage]] tables"
         )
+    if args.against is not None:
+        return _compare_searchers(args, experiment, seeds)
     if experiment.search["algorithm"] != "parallel_hill_climb":
         raise ConfigError(
             f"{args.config}: compare runs parallel_hill_climb with and without refinement; "
@@ -625,6 +634,31 @@ def _compare(args) -> int:
         raise ConfigError(str(e)) from None
     say = None if args.quiet else (lambda msg: print(f"compare: {msg}", file=sys.stderr))
     folder = run_compare(experiment, settings, directory=args.out, progress=say)
+    if not args.quiet:
+        print((folder / "compare.md").read_text(), file=sys.stderr)
+    print(folder)
+    return 0
+
+
+def _compare_searchers(args, experiment, seeds) -> int:
+    """`compare CONFIG --against TOML`: CONFIG's searcher against TOML's [search] one."""
+    from .compare import run_compare_searchers
+    from .config import ConfigError, parse_config, read_toml
+
+    other = read_toml(Path(args.against))
+    if set(other) - {"search"} or not isinstance(other.get("search"), dict):
+        raise ConfigError(
+            f"--against {args.against}: has {sorted(other) or 'nothing'}; allowed: a TOML file "
+            "with only a [search] table"
+        )
+    raw = read_toml(Path(args.config))
+    raw["search"] = other["search"]
+    try:
+        search = parse_config(raw, name=experiment.name).search
+    except ConfigError as e:
+        raise ConfigError(f"--against {args.against}: {e}") from None
+    say = None if args.quiet else (lambda msg: print(f"compare: {msg}", file=sys.stderr))
+    folder = run_compare_searchers(experiment, search, seeds, directory=args.out, progress=say)
     if not args.quiet:
         print((folder / "compare.md").read_text(), file=sys.stderr)
     print(folder)

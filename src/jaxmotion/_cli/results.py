@@ -27,10 +27,8 @@ from .._control.sense_bsr import SenseBSR
 from .._control.sequence import Sequence as Composite
 from .._control.spring_net import SpringNet
 from .._control.time_bsr import TimeBSR
-from .._search.evolve import evolve
-from .._search.hill_climb import SearchResult, parallel_hill_climb
 from .._search.history import History
-from .._search.serial import serial_search
+from .._search.protocol import SEARCHERS, SearchResult, drive
 from .._sim.trajectory import Trajectory, concatenate_trajectories
 from .._task import Task
 from .checkpoint import SUFFIX, Progress, find_checkpoint, load_checkpoint, save_checkpoint
@@ -39,6 +37,7 @@ from .config import (
     SEQUENCE_CHECKS,
     ConfigError,
     Experiment,
+    make_searcher,
     parse_config,
     read_toml,
     search_plan,
@@ -236,8 +235,8 @@ class _Checkpoints:
         if self.progress is not None and self.progress.latest is not None:
             state, count = self.progress.latest
             self.done.append((state, self.progress.history(count)))
-        serial = search.search["algorithm"] == "serial_search"
-        self.progress = Progress(seeds=search.search["runs"] if serial else None)
+        per_run = SEARCHERS[search.search["algorithm"]].per_run
+        self.progress = Progress(seeds=search.search["runs"] if per_run else None)
         self.resumed = self.pending.pop(0) if self.pending else None
         if self.resumed is not None:
             self.progress.record(*self.resumed)
@@ -276,54 +275,23 @@ def _run_search(
     carry_on = {} if resumed is None else {"state": resumed[0], "history": resumed[1]}
 
     def clock(state, part):
-        marks.append((time.perf_counter(), len(part)))
+        # One History, or one per run (serial search): the step's evaluations are all of theirs.
+        parts = part if isinstance(part, tuple) else (part,)
+        marks.append((time.perf_counter(), sum(len(p) for p in parts)))
         if checkpoints is not None:
             checkpoints(state, part)
 
-    def clock_runs(state, parts):
-        marks.append((time.perf_counter(), sum(len(p) for p in parts)))
-        if checkpoints is not None:
-            checkpoints(state, parts)
-
-    if s["algorithm"] == "serial_search":
-        result = serial_search(
-            experiment.task,
-            key=jr.key(experiment.seed),
-            seeds=s["runs"],
-            climbers=s["climbers"],
-            generations=s["generations"],
-            reseed_every=s["reseed_every"],
-            enrich=s["enrich"],
-            progress=progress,
-            # One History per run: the step's evaluations are all of theirs together.
-            callback=clock_runs,
-            **carry_on,
-        )
-    elif s["algorithm"] == "evolve":
-        generations = s["generations"]
-        if resumed is not None:  # the generations it had left (the first one included)
-            generations -= 1 + int(resumed[0].generation)
-        result = evolve(
-            experiment.task,
-            key=jr.key(experiment.seed),
-            generations=generations,
-            size=s["size"],
-            mutations=s["mutations"],
-            progress=progress,
-            callback=clock,
-            **carry_on,
-        )
-    else:
-        result = parallel_hill_climb(
-            experiment.task,
-            key=jr.key(experiment.seed),
-            evaluations=s["evaluations"],
-            size=s["size"],
-            batch=s["batch"],
-            progress=progress,
-            callback=clock,
-            **carry_on,
-        )
+    searcher, steps, last = make_searcher(s)
+    result = drive(
+        searcher,
+        experiment.task,
+        key=jr.key(experiment.seed),
+        steps=steps,
+        last=last,
+        progress=progress,
+        callback=clock,
+        **carry_on,
+    )
     end = time.perf_counter()
     timing = {
         "search_time_s": end - start,

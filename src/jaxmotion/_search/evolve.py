@@ -2,6 +2,7 @@
 Figures", section "Artificial Evolution"), with its hand-selection hook."""
 
 from collections.abc import Callable, Sequence
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -13,16 +14,17 @@ from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 from .._control.base import AbstractController
 from .._task import Task
 from .hill_climb import (
-    SearchResult,
     _check_positive_int,
     _check_resume,
+    _first_member,
+    _population_shape,
     _sample,
     _start_key,
     finite_fitness,
     finite_members,
-    ranked_result,
 )
 from .history import History
+from .protocol import AbstractSearcher, SearchResult, drive, register
 from .serial import _select
 
 # Controllers per device in one compiled call. Above about 200 per device (measured on the
@@ -63,7 +65,8 @@ class EvolveState(eqx.Module):
     evaluations: Int[Array, ""]
 
 
-class Evolve(eqx.Module):
+@register
+class Evolve(AbstractSearcher):
     """The third paper's generational algorithm, as pure init / pin / ask / tell functions.
 
     A generation of `size` controllers (`size` a multiple of 5), ranked by fitness, makes
@@ -89,6 +92,7 @@ class Evolve(eqx.Module):
     generation is evaluated the same way, so that every call shares one compilation.
     """
 
+    name: ClassVar[str] = "evolve"
     size: int = eqx.field(static=True)
     mutations: int = eqx.field(static=True)
 
@@ -158,10 +162,30 @@ class Evolve(eqx.Module):
     def step(self, task: Task, state: EvolveState) -> tuple[EvolveState, Float[Array, " batch"]]:
         """ask, evaluate (one call), tell. Returns the new state and the fitness of this
         generation's `4 size / 5` evaluations."""
-        children = self.ask(task, state)
+        return super().step(task, state)
+
+    def evaluate(self, task: Task, state: EvolveState, candidates):
         starts = _start_key(task, state.key, state.generation)
-        fitness = task.evaluate(children, chunk=self.chunk, key=starts)
-        return self.tell(state, children, fitness), fitness
+        return task.evaluate(candidates, chunk=self.chunk, key=starts), {}
+
+    def steps_done(self, state: EvolveState) -> int:
+        return int(state.generation)
+
+    def best(self, state: EvolveState) -> tuple[AbstractController, float]:
+        return _first_member(state)
+
+    def template(self, task: Task) -> EvolveState:
+        x = jax.ShapeDtypeStruct((), jnp.float32)
+        return EvolveState(_population_shape(task), x, x, x, x, x, x)
+
+    def check_resume(self, state: EvolveState, history) -> None:
+        if state.fitness.shape != (self.size,):
+            raise ValueError(
+                f"evolve: the state holds {state.fitness.shape[0]} controllers; allowed: size = "
+                f"{self.size}"
+            )
+        if history is not None:
+            _check_resume(state, history, (self.size,), int(state.evaluations))
 
 
 @eqx.filter_jit
@@ -300,42 +324,24 @@ def evolve(
     if state is None or generations != 0:  # a continued state may have none left to make
         generations = _check_positive_int("generations", generations)
     search = Evolve(size=size, mutations=mutations)
-    parts = []
-    todo = generations
     if state is None:
-        todo -= 1
-        state, initial = search.init(task, key=key)
-        parts.append(History(np.asarray(initial), np.zeros(search.size, dtype=np.int64)))
-        if callback is not None:
-            callback(state, parts[0])
-    elif state.fitness.shape != (search.size,):
-        raise ValueError(
-            f"evolve: the state holds {state.fitness.shape[0]} controllers; allowed: size = "
-            f"{search.size}"
-        )
-    elif history is not None:
-        _check_resume(state, history, (search.size,), int(state.evaluations))
-        parts.append(history)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
+        steps = generations - 1  # after the random first generation
+    else:
+        search.check_resume(state, history)
+        steps = int(state.generation) + generations
 
-        bar = tqdm(total=todo, unit="gen", desc="evolution")
-    try:
-        for _ in range(todo):
-            if select is not None:
-                picked = select(state)
-                if picked is not None and len(picked):
-                    state = search.pin(state, picked)
-            state, fitness = search.step(task, state)
-            part = History(np.asarray(fitness), np.full(search.batch, int(state.generation)))
-            parts.append(part)
-            if callback is not None:
-                callback(state, part)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(best=f"{float(state.fitness[0]):.4g}", refresh=False)
-    finally:
-        if bar is not None:
-            bar.close()
-    return ranked_result(state, parts)
+    def pin(state: EvolveState) -> EvolveState:
+        picked = select(state) if select is not None else None
+        return search.pin(state, picked) if picked is not None and len(picked) else state
+
+    return drive(
+        search,
+        task,
+        key=key,
+        steps=steps,
+        progress=progress,
+        callback=callback,
+        before_step=pin,
+        state=state,
+        history=history,
+    )

@@ -2,7 +2,7 @@
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -14,6 +14,7 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 from .._control.base import AbstractController
 from .._task import Task
 from .history import History
+from .protocol import AbstractSearcher, SearchResult, drive, register
 
 
 class HillClimbState(eqx.Module):
@@ -39,7 +40,8 @@ def _check_positive_int(name: str, value) -> int:
     return int(value)
 
 
-class ParallelHillClimb(eqx.Module):
+@register
+class ParallelHillClimb(AbstractSearcher):
     """Parallel hill climbing (first paper, Figure 4), as pure init / ask / tell functions.
 
     The search set holds `size` controllers ranked by fitness. Each step draws `batch` members
@@ -54,6 +56,7 @@ class ParallelHillClimb(eqx.Module):
     (the initial set is evaluated in batches of the same size). `step` composes the three.
     """
 
+    name: ClassVar[str] = "parallel_hill_climb"
     size: int = eqx.field(static=True)
     batch: int = eqx.field(static=True)
 
@@ -95,9 +98,30 @@ class ParallelHillClimb(eqx.Module):
     ) -> tuple[HillClimbState, Float[Array, " batch"]]:
         """ask, evaluate, tell. Returns the new state and the fitness of this step's `batch`
         evaluations."""
-        children = self.ask(task, state)
-        fitness = task.evaluate(children, key=_start_key(task, state.key, state.step))
-        return self.tell(state, children, fitness, num_valid), fitness
+        return super().step(task, state, num_valid=num_valid)
+
+    def start_key(self, task: Task, state: HillClimbState):
+        return _start_key(task, state.key, state.step)
+
+    def steps_done(self, state: HillClimbState) -> int:
+        return int(state.step)
+
+    def best(self, state: HillClimbState) -> tuple[AbstractController, float]:
+        return _first_member(state)
+
+    def check_resume(self, state: HillClimbState, history) -> None:
+        _check_resume(state, history, (self.size,), int(state.evaluations))
+
+    def template(self, task: Task) -> HillClimbState:
+        x = jax.ShapeDtypeStruct((), jnp.float32)
+        return HillClimbState(_population_shape(task), x, x, x, x)
+
+    def plan(self, evaluations: int) -> tuple[int, int]:
+        """The steps that make `evaluations` evaluations after the initial set, and how many
+        of the last step's count."""
+        evaluations = _check_positive_int("evaluations", evaluations)
+        steps = math.ceil(evaluations / self.batch)
+        return steps, evaluations - (steps - 1) * self.batch
 
 
 # The random starts of a task with robustness (`Task.robustness`) draw from
@@ -185,22 +209,6 @@ def _tell(search: ParallelHillClimb, state: HillClimbState, children, fitness, n
     )
 
 
-@dataclass(frozen=True)
-class SearchResult:
-    """What a search returns.
-
-    - `best`: the best controller found (unbatched).
-    - `best_fitness`: its fitness (maximised).
-    - `history`: the fitness of every evaluation, in order (`History`).
-    - `state`: the final search state (resume or inspect it).
-    """
-
-    best: AbstractController
-    best_fitness: float
-    history: History
-    state: eqx.Module
-
-
 def parallel_hill_climb(
     task: Task,
     *,
@@ -232,42 +240,19 @@ def parallel_hill_climb(
 
     **Returns:** a `SearchResult`; its history has `size + evaluations` entries.
     """
-    evaluations = _check_positive_int("evaluations", evaluations)
     search = ParallelHillClimb(size=size, batch=batch)
-    if state is None:
-        state, initial = search.init(task, key=key)
-        parts = [History(np.asarray(initial), np.zeros(search.size, dtype=np.int64))]
-        if callback is not None:
-            callback(state, parts[0])
-    else:
-        _check_resume(state, history, (search.size,), int(state.evaluations))
-        parts = [history]
-    steps = math.ceil(evaluations / search.batch)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=evaluations, unit="eval", desc="hill climbing")
-    try:
-        first = int(state.step)
-        done = int(state.evaluations) - search.size
-        if bar is not None:
-            bar.update(done)
-        for k in range(first, steps):
-            num_valid = min(search.batch, evaluations - done)
-            state, fitness = search.step(task, state, num_valid)
-            part = History(np.asarray(fitness)[:num_valid], np.full(num_valid, k + 1))
-            parts.append(part)
-            done += num_valid
-            if callback is not None:
-                callback(state, part)
-            if bar is not None:
-                bar.update(num_valid)
-                bar.set_postfix(best=f"{float(state.fitness[0]):.4g}", refresh=False)
-    finally:
-        if bar is not None:
-            bar.close()
-    return ranked_result(state, parts)
+    steps, last = search.plan(evaluations)
+    return drive(
+        search,
+        task,
+        key=key,
+        steps=steps,
+        last=last,
+        progress=progress,
+        callback=callback,
+        state=state,
+        history=history,
+    )
 
 
 def _check_resume(state, history, shape: tuple[int, ...], evaluations: int) -> None:
@@ -287,12 +272,12 @@ def _check_resume(state, history, shape: tuple[int, ...], evaluations: int) -> N
         )
 
 
-def ranked_result(state, parts: list[History]) -> SearchResult:
-    """The `SearchResult` of a search whose state keeps its population ranked, best first
-    (`population`, `fitness`), and the `History` of each of its steps."""
-    return SearchResult(
-        best=jax.tree_util.tree_map(lambda a: a[0], state.population),
-        best_fitness=float(state.fitness[0]),
-        history=History.concatenate(parts),
-        state=state,
-    )
+def _population_shape(task: Task):
+    """The shapes and dtypes of a population of `task` (one member), drawing nothing."""
+    return eqx.filter_eval_shape(lambda: task.sample(1, key=jr.key(0)))
+
+
+def _first_member(state) -> tuple[AbstractController, float]:
+    """The first member of a state that keeps its population ranked, best first
+    (`population`, `fitness`), and its fitness."""
+    return jax.tree_util.tree_map(lambda a: a[0], state.population), float(state.fitness[0])

@@ -4,6 +4,7 @@ generations."""
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -18,12 +19,13 @@ from .._sim.execution import batch_size, padded, share
 from .._task import Task
 from .hill_climb import (
     _STARTS,
-    SearchResult,
     _check_positive_int,
     _check_resume,
+    _population_shape,
     finite_fitness,
 )
 from .history import History
+from .protocol import AbstractSearcher, SearchResult, drive, register
 
 
 class SerialSearchState(eqx.Module):
@@ -75,7 +77,8 @@ def _check_seed_offset(value) -> int:
     return int(value)
 
 
-class SerialSearch(eqx.Module):
+@register
+class SerialSearch(AbstractSearcher):
     """Serial search (second paper, Figure 3), as pure init / ask / tell functions.
 
     Each of `climbers` controllers is mutated once per generation (the family's `perturb`),
@@ -108,31 +111,51 @@ class SerialSearch(eqx.Module):
     - `climbers`: controllers per seed (the paper's C = 10).
     - `reseed_every`: generations between reseedings (the paper's R = 200).
     - `enrich`: rounds of relevance-heuristic reinitialisation of the initial set (0: none).
+    - `seeds`, `seed_offset`: the independent runs `init` draws by default (seeds
+        `seed_offset, ..., seed_offset + seeds - 1`).
     """
 
+    name: ClassVar[str] = "serial_search"
+    per_run: ClassVar[bool] = True
     climbers: int = eqx.field(static=True)
     reseed_every: int = eqx.field(static=True)
     enrich: int = eqx.field(static=True)
+    seeds: int = eqx.field(static=True)
+    seed_offset: int = eqx.field(static=True)
 
-    def __init__(self, climbers: int = 10, reseed_every: int = 200, enrich: int = 0):
+    def __init__(
+        self,
+        climbers: int = 10,
+        reseed_every: int = 200,
+        enrich: int = 0,
+        seeds: int = 1,
+        seed_offset: int = 0,
+    ):
         self.climbers = _check_positive_int("climbers", climbers)
         self.reseed_every = _check_positive_int("reseed_every", reseed_every)
         if isinstance(enrich, bool) or not isinstance(enrich, int | np.integer) or enrich < 0:
             raise ValueError(f"enrich = {enrich!r}; allowed: an integer >= 0")
         self.enrich = int(enrich)
+        self.seeds = _check_positive_int("seeds", seeds)
+        self.seed_offset = _check_seed_offset(seed_offset)
 
     def init(
-        self, task: Task, *, key: PRNGKeyArray, seeds: int = 1, seed_offset: int = 0
+        self,
+        task: Task,
+        *,
+        key: PRNGKeyArray,
+        seeds: int | None = None,
+        seed_offset: int | None = None,
     ) -> tuple[SerialSearchState, Float[Array, "rounds seeds climbers"]]:
         """Draw and evaluate the initial climbers of seeds `seed_offset, ...,
         seed_offset + seeds - 1` (and enrich them, `enrich` rounds); seed `s` draws from
-        `jax.random.fold_in(key, s)`.
+        `jax.random.fold_in(key, s)`. `seeds`, `seed_offset`: default the searcher's.
 
         **Returns:** the state and the fitness of every initial evaluation,
         `(1 + enrich, seeds, climbers)`: the random set, then each enrichment round.
         """
-        seeds = _check_positive_int("seeds", seeds)
-        seed_offset = _check_seed_offset(seed_offset)
+        seeds = _check_positive_int("seeds", self.seeds if seeds is None else seeds)
+        seed_offset = _check_seed_offset(self.seed_offset if seed_offset is None else seed_offset)
         if self.enrich and not hasattr(task.space, "reinitialise"):
             raise ValueError(
                 f"enrich = {self.enrich}: the {task.space.family!r} family has no relevance "
@@ -183,10 +206,54 @@ class SerialSearch(eqx.Module):
     ) -> tuple[SerialSearchState, Float[Array, "seeds climbers"]]:
         """ask, evaluate, tell. Returns the new state and the fitness of this generation's
         mutants, `(seeds, climbers)`."""
-        mutants = self.ask(task, state)
+        new, fitness = super().step(task, state)
+        return new, fitness.reshape(state.fitness.shape)
+
+    def evaluate(self, task: Task, state: SerialSearchState, candidates):
+        """The mutants' fitness, and their motion for a family whose mutation uses it."""
         starts = _start_keys(task, state.key, state.fitness.shape[1], 2, state.generation)
-        fitness, motion = _evaluate(task, mutants, starts)
-        return self.tell(state, mutants, fitness, motion), fitness.reshape(state.fitness.shape)
+        fitness, motion = _evaluate(task, candidates, starts)
+        return fitness, {"motion": motion}
+
+    def steps_done(self, state: SerialSearchState) -> int:
+        return int(state.generation)
+
+    def runs(self, state: SerialSearchState) -> int:
+        return state.num_seeds
+
+    def best(self, state: SerialSearchState) -> tuple[AbstractController, float]:
+        bests, best_fitness, _ = _split(state)
+        winner = int(np.argmax(np.asarray(best_fitness)))
+        return bests[winner], float(best_fitness[winner])
+
+    def template(self, task: Task) -> SerialSearchState:
+        x = jax.ShapeDtypeStruct((), jnp.float32)
+        motion = x if type(task.space).uses_motion else None
+        return SerialSearchState(_population_shape(task), x, x, x, x, motion)
+
+    def check_resume(self, state: SerialSearchState, history) -> None:
+        _rounds(state, history, state.num_seeds, self.climbers)
+
+    def result(self, state: SerialSearchState, runs: list[History]) -> "SerialSearchResult":
+        bests, best_fitness, states = _split(state)
+        results = [
+            SearchResult(
+                best=bests[i],
+                best_fitness=float(best_fitness[i]),
+                history=runs[i],
+                state=states[i],
+            )
+            for i in range(len(runs))
+        ]
+        winner = int(np.argmax([r.best_fitness for r in results]))
+        return SerialSearchResult(
+            best=results[winner].best,
+            best_fitness=results[winner].best_fitness,
+            history=results[winner].history,
+            state=state,
+            seed=self.seed_offset + winner,
+            runs=tuple(results),
+        )
 
 
 def _evaluate(task: Task, population, starts=None):
@@ -468,65 +535,23 @@ def serial_search(
     **Raises:** `ValueError` for a setting that is not a positive integer (`seed_offset`: a
     non-negative one), before anything compiles.
     """
-    seeds = _check_positive_int("seeds", seeds)
-    seed_offset = _check_seed_offset(seed_offset)
     generations = _check_positive_int("generations", generations)
-    search = SerialSearch(climbers=climbers, reseed_every=reseed_every, enrich=enrich)
-
-    def report(state: SerialSearchState, rows: list[np.ndarray], g: int):
-        if callback is not None:
-            part = np.concatenate(rows, axis=1)  # (seeds, rounds * climbers)
-            callback(state, tuple(History(f, np.full(f.shape[0], g)) for f in part))
-
-    if state is None:
-        state, initial = search.init(task, key=key, seeds=seeds, seed_offset=seed_offset)
-        parts = list(np.asarray(initial))  # one (seeds, climbers) row per evaluation round
-        steps = [0] * len(parts)
-        report(state, parts, 0)
-    else:
-        parts, steps = _rounds(state, history, seeds, search.climbers)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=generations, unit="gen", desc="serial search")
-    try:
-        best = float(np.max(parts))
-        if bar is not None:
-            bar.update(int(state.generation))
-        for g in range(int(state.generation) + 1, generations + 1):
-            state, fitness = search.step(task, state)
-            part = np.asarray(fitness)
-            parts.append(part)
-            steps.append(g)
-            report(state, [part], g)
-            if bar is not None:
-                best = max(best, float(np.max(part)))
-                bar.update(1)
-                bar.set_postfix(best=f"{best:.4g}", refresh=False)
-    finally:
-        if bar is not None:
-            bar.close()
-
-    # (rounds, seeds, climbers) -> per seed, in evaluation order.
-    table = np.stack(parts)
-    steps = np.repeat(np.asarray(steps), search.climbers)
-    bests, best_fitness, states = _split(state)
-    runs = [
-        SearchResult(
-            best=bests[i],
-            best_fitness=float(best_fitness[i]),
-            history=History(table[:, i, :].reshape(-1), steps),
-            state=states[i],
-        )
-        for i in range(seeds)
-    ]
-    winner = int(np.argmax([r.best_fitness for r in runs]))
-    return SerialSearchResult(
-        best=runs[winner].best,
-        best_fitness=runs[winner].best_fitness,
-        history=runs[winner].history,
+    search = SerialSearch(
+        climbers=climbers,
+        reseed_every=reseed_every,
+        enrich=enrich,
+        seeds=seeds,
+        seed_offset=seed_offset,
+    )
+    if state is not None:
+        _rounds(state, history, search.seeds, search.climbers)
+    return drive(
+        search,
+        task,
+        key=key,
+        steps=generations,
+        progress=progress,
+        callback=callback,
         state=state,
-        seed=seed_offset + winner,
-        runs=tuple(runs),
+        history=history,
     )
