@@ -27,6 +27,10 @@ jaxmotion: automatic motion synthesis for animated characters.
                                            one self-contained HTML page of results folders
                                            (or folders of them): motions, learning plots,
                                            checks and key figures, sortable and filterable
+  python -m jaxmotion sweep CONFIG... --seeds 0-9 [--set KEY=VALUE ...] [--address ADDR]
+                                           independent runs (configs x seeds x override
+                                           sets) as Ray tasks, on a local Ray or a cluster;
+                                           a table (sweep.md, sweep.csv) and sweep.png
 
 A run writes a results folder: config.toml (resolved), best_controller.json, history.csv (one
 row per evaluation), learning_plot.png, motion.gif and summary.json. Fitness is maximised.
@@ -60,6 +64,13 @@ def _parser() -> argparse.ArgumentParser:
         )
         q.add_argument("--no-animation", action="store_true", help="do not write motion.gif")
         q.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+        q.add_argument(
+            "--set",
+            action="append",
+            metavar="KEY=VALUE",
+            help="override a config key, e.g. --set search.evaluations=2000 (a TOML value; "
+            "repeat for several keys)",
+        )
         q.add_argument(
             "--checkpoint-every",
             type=float,
@@ -175,6 +186,57 @@ def _parser() -> argparse.ArgumentParser:
         default="gallery.html",
         help="the page to write (default: gallery.html in the working directory)",
     )
+    sweep = sub.add_parser(
+        "sweep",
+        help="independent runs (configs x seeds x override sets) as Ray tasks",
+        description="Run every config with every seed and override set as independent "
+        "searches, each a Ray task that runs `python -m jaxmotion run` and writes its results "
+        "folder into the sweep's folder; on a local Ray started for the sweep, or on a "
+        "cluster with --address. A task that fails or is killed is retried once. Writes "
+        "sweep.md and sweep.csv (best fitness, check, wall time per search) and sweep.png "
+        "(the learning curves). Needs Ray: pip install 'jaxmotion[cluster]'.",
+    )
+    sweep.add_argument("config", nargs="+", help="TOML configs, e.g. configs/default.toml")
+    sweep.add_argument(
+        "--seeds", help="seeds and ranges, e.g. 0-9 or 0,3,5 (default: each config's seed)"
+    )
+    sweep.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a config key in every search, e.g. --set search.evaluations=2000 (a "
+        "TOML value); a key given several values is crossed with the rest",
+    )
+    sweep.add_argument(
+        "--address",
+        help="an existing Ray cluster (e.g. ray://head:10001, or auto); default: a local Ray "
+        "started for the sweep",
+    )
+    sweep.add_argument(
+        "--out", metavar="DIR", help="where the sweep's folder goes (default: results)"
+    )
+    sweep.add_argument(
+        "--cpus-per-task",
+        type=_cpu_count,
+        default=1,
+        metavar="N",
+        help="CPUs Ray gives each search; JAX in it makes one device per CPU (default 1)",
+    )
+    sweep.add_argument(
+        "--local-cpus",
+        type=_cpu_count,
+        metavar="N",
+        help="CPUs of the local Ray (default: every core); not with --address",
+    )
+    sweep.add_argument("--no-animation", action="store_true", help="no motion.gif per search")
+    sweep.add_argument("--quiet", action="store_true", help="no progress lines or table")
+    sweep.add_argument(
+        "--checkpoint-every",
+        type=float,
+        default=30.0,
+        metavar="SECONDS",
+        help="each search's checkpoint interval; a killed search's retry resumes from it",
+    )
     run_options(p)  # `python -m jaxmotion [options]` runs the default experiment
     for q in (p, *sub.choices.values()):
         q.add_argument(
@@ -184,7 +246,23 @@ def _parser() -> argparse.ArgumentParser:
             "$JAXMOTION_COMPILATION_CACHE, else ~/.cache/jaxmotion/jax, so the next run "
             "starts warm; see the README's Performance section)",
         )
+    for q in (p, *sub.choices.values()):
+        q.add_argument(
+            "--cpu-devices",
+            type=_cpu_count,
+            metavar="N",
+            help="CPU devices JAX makes (default: one per core); a sweep gives each of its "
+            "runs --cpus-per-task",
+        )
     return p
+
+
+def _cpu_count(text: str) -> int:
+    """A count of CPUs (`--cpu-devices`, `--cpus-per-task`, `--local-cpus`)."""
+    n = int(text) if text.strip().isdigit() else 0
+    if not 1 <= n <= 4096:
+        raise argparse.ArgumentTypeError(f"{text!r}; allowed: an integer from 1 to 4096")
+    return n
 
 
 def _compose_check(path: Path) -> str | None:
@@ -334,10 +412,16 @@ def _load(path: Path, args):
     from .config import ConfigError, parse_config, read_toml
 
     raw = read_toml(path)
+    if getattr(args, "set", None):
+        from .sweep import apply_sets, override_sets
+
+        [settings] = override_sets(args.set, grid=False)
+        raw = apply_sets(raw, settings)
     try:
         return parse_config(_overrides(raw, args), name=path.stem)
     except ConfigError as e:
-        raise ConfigError(f"{path}: {e}") from None
+        given = " ".join(getattr(args, "set", None) or ())
+        raise ConfigError(f"{path}: {e}" + (f" (with --set {given})" if given else "")) from None
 
 
 def _run(path: Path, args) -> int:
@@ -727,7 +811,7 @@ def main(argv: list[str] | None = None) -> int:
     # One CPU device per core, before anything starts JAX (the application's call).
     from .._devices import use_cpu_cores
 
-    use_cpu_cores()
+    use_cpu_cores() if args.cpu_devices is None else use_cpu_cores(args.cpu_devices)
     from .cache import use_compilation_cache
     from .config import ConfigError, default_config_path, search_evaluations
 
@@ -765,6 +849,10 @@ def main(argv: list[str] | None = None) -> int:
             return _export(args)
         if args.command == "gallery":
             return _gallery(args)
+        if args.command == "sweep":
+            from .sweep import run_sweep
+
+            return run_sweep(args)
         return _replay(args)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)

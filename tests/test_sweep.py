@@ -1,0 +1,184 @@
+"""`python -m jaxmotion sweep`: searches as Ray tasks, each the CLI's `run`.
+
+One sweep on a local Ray with 2 workers (2 configs x 2 seeds, tiny budgets), one of whose
+runs is SIGKILLed mid-run; its folders are compared with plain `run`s of the same config,
+seed and overrides. Bad --seeds and --set fail before Ray starts."""
+
+import csv
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from jaxmotion._cli.sweep import apply_sets, override_sets, parse_seeds
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = [ROOT / "configs" / "default.toml", ROOT / "configs" / "spider_leap.toml"]
+# Tiny budgets: 120 evaluations of 1 s motions (most of a task is starting Python and JAX,
+# and the first compilation of each body).
+SETS = ["search.evaluations=100", "search.size=20", "search.batch=20", "simulation.duration=1.0"]
+SEEDS = (0, 1)
+VICTIM = "spider_leap-seed1"  # the task whose first attempt is killed
+SWEEP_TIMEOUT_S = 600  # a hung sweep fails the test instead of hanging CI
+
+
+def _kill_when_running(proc: subprocess.Popen, root: Path) -> int | None:
+    """SIGKILL the first attempt of VICTIM's `run` process once it has started (its hidden
+    `.NAME-TIME.pidPID.*.partial` results folder exists: the config is read and the search
+    is under way); returns the pid killed (None if the sweep ended first)."""
+    pattern = f"sweep-*/.{VICTIM}.task/out/.*.partial"
+    while proc.poll() is None:
+        for partial in root.glob(pattern):
+            pid = int(re.search(r"\.pid(\d+)\.", partial.name).group(1))
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                continue  # it finished between the glob and the kill
+            return pid
+        time.sleep(0.005)
+    return None
+
+
+def _plain_runs(tmp_path: Path) -> dict[str, Path]:
+    """The same searches by `run` (`python -m jaxmotion run CONFIG --seed S --set ...
+    --cpu-devices 1`, the CLI's `main` called as `python -m jaxmotion` calls it, in one
+    process so that Python and JAX start once); their folders by the sweep's labels."""
+    calls, labels = [], []
+    for config in CONFIGS:
+        for seed in SEEDS:
+            out = tmp_path / "plain" / f"{config.stem}-{seed}"
+            sets = [f"--set={s}" for s in SETS]
+            flags = ["--cpu-devices", "1", "--no-animation", "--quiet", "--out", str(out)]
+            calls.append(["run", str(config), "--seed", str(seed), *sets, *flags])
+            labels.append(f"{config.stem}-seed{seed}")
+    script = (
+        "import json, sys\nfrom jaxmotion._cli.main import main\n"
+        "for argv in json.loads(sys.argv[1]):\n    assert main(argv) == 0\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, json.dumps(calls)],
+        capture_output=True,
+        text=True,
+        timeout=SWEEP_TIMEOUT_S,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    folders = [Path(line) for line in done.stdout.split()]
+    return dict(zip(labels, folders, strict=True))
+
+
+def test_sweep_equals_runs_and_retries_a_killed_task(tmp_path):
+    root = tmp_path / "sweeps"
+    command = [sys.executable, "-m", "jaxmotion", "sweep", *map(str, CONFIGS)]
+    command += ["--seeds", "0-1", *(f"--set={s}" for s in SETS), "--no-animation"]
+    command += ["--local-cpus", "2", "--cpus-per-task", "1", "--out", str(root)]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        killed = _kill_when_running(proc, root)
+        out, err = proc.communicate(timeout=SWEEP_TIMEOUT_S)
+    finally:
+        proc.kill()
+    assert killed is not None, f"the sweep ended before {VICTIM} could be killed:\n{err}"
+    assert proc.returncode == 0, err
+    sweep = Path(out.split()[-1])
+
+    rows = {row["folder"]: row for row in csv.DictReader((sweep / "sweep.csv").open())}
+    labels = [f"{c.stem}-seed{s}" for s in SEEDS for c in CONFIGS]
+    assert list(rows) == labels  # every search, seed-major
+    for label, row in rows.items():
+        assert row["status"] == "ok", row
+        assert row["attempts"] == ("2" if label == VICTIM else "1"), row
+        assert row["overrides"] == " ".join(SETS)
+    # The killed attempt is reported, in the table and on stderr.
+    assert rows[VICTIM]["failures"].startswith("attempt 1: killed by SIGKILL"), rows[VICTIM]
+    assert f"{VICTIM}: attempt 1 killed by SIGKILL" in err
+    assert "## Failures and retries" in (sweep / "sweep.md").read_text()
+    assert (sweep / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # Nothing half-written: only the finished folders and the tables (the killed attempt's
+    # working folder went with its retry).
+    assert sorted(p.name for p in sweep.iterdir()) == sorted(
+        [*labels, "sweep.csv", "sweep.md", "sweep.png"]
+    )
+
+    # Each folder is the plain run's: the same files, the same resolved config, the same
+    # fitness for every evaluation, the same best fitness (exactly: the same program).
+    plain = _plain_runs(tmp_path)
+    for label in labels:
+        ours, theirs = sweep / label, plain[label]
+        assert sorted(p.name for p in ours.iterdir()) == sorted(p.name for p in theirs.iterdir())
+        assert (ours / "config.toml").read_text() == (theirs / "config.toml").read_text()
+        assert (ours / "history.csv").read_text() == (theirs / "history.csv").read_text()
+        best = json.loads((theirs / "summary.json").read_text())["best_fitness"]
+        assert json.loads((ours / "summary.json").read_text())["best_fitness"] == best
+        assert float(rows[label]["best_fitness"]) == best
+
+
+def _main(argv, capsys) -> tuple[int, str]:
+    from jaxmotion._cli.main import main
+
+    code = main([*argv, "--cpu-devices", "1", "--no-compilation-cache"])
+    return code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        (["--seeds", "5-2"], "--seeds '5-2': the range '5-2' runs backwards; allowed: integers"),
+        (["--seeds", "0,x"], "--seeds '0,x': 'x' is not a seed or a range"),
+        (["--seeds", "0-3,2"], "--seeds '0-3,2': seed 2 is given twice"),
+        (["--seeds", "4294967296"], "--seeds '4294967296': 4294967296 is too large"),
+        (["--set", "search.evaluations"], "--set 'search.evaluations' has no '='; allowed: KEY="),
+        (["--set", "search.evaluations=2k"], "'2k' is not a TOML value; allowed: a number"),
+        (["--set", "search..size=3"], "the key 'search..size' is not a dotted name"),
+        (["--set", "search=3"], "search is a table; allowed: one of its keys"),
+        (["--set", "seed.x=3"], "seed is the value 0, not a table"),
+        (
+            ["--set", "search.evaluationz=10"],
+            "[search] has an unknown key 'evaluationz'; allowed: algorithm, evaluations",
+        ),
+        (
+            ["--set", "search.evaluations=-5"],
+            "[search] evaluations = -5; allowed: an integer",
+        ),
+        (["--set", "seed=1", "--set", "seed=1"], "--set 'seed=1' is given twice"),
+    ],
+)
+def test_bad_seeds_and_sets_are_named_before_ray_starts(option, message, capsys, tmp_path):
+    code, err = _main(["sweep", str(CONFIGS[0]), *option, "--out", str(tmp_path)], capsys)
+    assert code == 2
+    assert message in err
+    assert not any(tmp_path.iterdir())  # nothing started, nothing written
+
+
+def test_run_takes_set_once_per_key(capsys, tmp_path):
+    argv = ["run", str(CONFIGS[0]), "--set", "seed=1", "--set", "seed=2", "--out", str(tmp_path)]
+    code, err = _main(argv, capsys)
+    assert code == 2
+    assert "--set seed is given 2 times; allowed: once" in err
+
+
+def test_set_values_are_toml_and_repeated_keys_are_crossed():
+    sets = override_sets(
+        ["search.size=50", "name=fast-cube", "search.size=100", 'output.directory="r s"'],
+        grid=True,
+    )
+    assert [[(s.key, s.value) for s in combo] for combo in sets] == [
+        [("search.size", 50), ("name", "fast-cube"), ("output.directory", "r s")],
+        [("search.size", 100), ("name", "fast-cube"), ("output.directory", "r s")],
+    ]
+    raw = {"search": {"size": 10, "batch": 5}, "seed": 0}
+    applied = apply_sets(raw, sets[1])
+    assert applied == {
+        "search": {"size": 100, "batch": 5},
+        "seed": 0,
+        "name": "fast-cube",
+        "output": {"directory": "r s"},
+    }
+    assert raw == {"search": {"size": 10, "batch": 5}, "seed": 0}  # the config is not changed
+    assert parse_seeds("0-2, 7,9-10") == (0, 1, 2, 7, 9, 10)
