@@ -25,22 +25,25 @@ CONFIGS = [ROOT / "configs" / "default.toml", ROOT / "configs" / "spider_leap.to
 SETS = ["search.evaluations=100", "search.size=20", "search.batch=20", "simulation.duration=1.0"]
 SEEDS = (0, 1)
 VICTIM = "spider_leap-seed1"  # the task whose first attempt is killed
+CHECKPOINT_EVERY_S = 0.2  # so that the victim has a checkpoint to resume from
 SWEEP_TIMEOUT_S = 600  # a hung sweep fails the test instead of hanging CI
 
 
 def _kill_when_running(proc: subprocess.Popen, root: Path) -> int | None:
-    """SIGKILL the first attempt of VICTIM's `run` process once it has started (its hidden
-    `.NAME-TIME.pidPID.*.partial` results folder exists: the config is read and the search
-    is under way); returns the pid killed (None if the sweep ended first)."""
-    pattern = f"sweep-*/.{VICTIM}.task/out/.*.partial"
+    """SIGKILL the first attempt of VICTIM's `run` process once it is searching and has
+    saved a checkpoint (its `*.checkpoint` file exists); the process is found by its hidden
+    results folder, `.NAME-TIME.pidPID.*.partial`. Returns the pid killed (None if the
+    sweep ended first)."""
+    work = f"sweep-*/.{VICTIM}.task/out"
     while proc.poll() is None:
-        for partial in root.glob(pattern):
-            pid = int(re.search(r"\.pid(\d+)\.", partial.name).group(1))
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                continue  # it finished between the glob and the kill
-            return pid
+        if any(root.glob(f"{work}/*.checkpoint")):
+            for partial in root.glob(f"{work}/.*.partial"):
+                pid = int(re.search(r"\.pid(\d+)\.", partial.name).group(1))
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    continue  # it finished between the glob and the kill
+                return pid
         time.sleep(0.005)
     return None
 
@@ -78,6 +81,7 @@ def test_sweep_equals_runs_and_retries_a_killed_task(tmp_path):
     command = [sys.executable, "-m", "jaxmotion", "sweep", *map(str, CONFIGS)]
     command += ["--seeds", "0-1", *(f"--set={s}" for s in SETS), "--no-animation"]
     command += ["--local-cpus", "2", "--cpus-per-task", "1", "--out", str(root)]
+    command += ["--checkpoint-every", str(CHECKPOINT_EVERY_S)]
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         killed = _kill_when_running(proc, root)
@@ -95,8 +99,11 @@ def test_sweep_equals_runs_and_retries_a_killed_task(tmp_path):
         assert row["status"] == "ok", row
         assert row["attempts"] == ("2" if label == VICTIM else "1"), row
         assert row["overrides"] == " ".join(SETS)
-    # The killed attempt is reported, in the table and on stderr.
-    assert rows[VICTIM]["failures"].startswith("attempt 1: killed by SIGKILL"), rows[VICTIM]
+    # The killed attempt is reported, in the table and on stderr, and its retry resumed
+    # from its checkpoint (to the very result of an uninterrupted run, checked below).
+    failures = rows[VICTIM]["failures"]
+    assert failures.startswith("attempt 1: killed by SIGKILL"), failures
+    assert failures.endswith("; attempt 2 resumed from the checkpoint"), failures
     assert f"{VICTIM}: attempt 1 killed by SIGKILL" in err
     assert "## Failures and retries" in (sweep / "sweep.md").read_text()
     assert (sweep / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
