@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from jaxmotion._cli.sweep import apply_sets, override_sets, parse_seeds
+from jaxmotion._cli.sweep import apply_sets, override_sets, pack, parse_seeds, unpack
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = [ROOT / "configs" / "default.toml", ROOT / "configs" / "spider_leap.toml"]
@@ -189,3 +189,27 @@ def test_set_values_are_toml_and_repeated_keys_are_crossed():
     }
     assert raw == {"search": {"size": 10, "batch": 5}, "seed": 0}  # the config is not changed
     assert parse_seeds("0-2, 7,9-10") == (0, 1, 2, 7, 9, 10)
+
+
+def test_a_folder_sent_back_from_another_node_arrives_whole(tmp_path):
+    """A search on another node sends its results folder back as an archive (no shared file
+    system): every file, a multi-stage run's subfolders too, byte for byte."""
+    folder = tmp_path / "cube-forward-20261204-120000"
+    (folder / "stage-1-walk").mkdir(parents=True)
+    files = {
+        "summary.json": b'{"best_fitness": 1.5}\n',
+        "history.csv": b"evaluation,step,fitness,best_so_far\n1,0,1.5,1.5\n",
+        "stage-1-walk/learning_plot.png": bytes(range(256)) * 40,
+    }
+    for name, data in files.items():
+        (folder / name).write_bytes(data)
+    into = tmp_path / "sweep"
+    into.mkdir()
+    unpack(pack(folder, "default-seed3"), into)
+    arrived = {
+        str(p.relative_to(into / "default-seed3")): p.read_bytes()
+        for p in (into / "default-seed3").rglob("*")
+        if p.is_file()
+    }
+    assert arrived == files
+    assert [p.name for p in into.iterdir()] == ["default-seed3"]

@@ -279,12 +279,26 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
         os.replace(folder, sweep / spec["label"])
         result["folder"] = spec["label"]
     else:
-        buffer = io.BytesIO()
-        with tarfile.open(fileobj=buffer, mode="w:gz") as tar:
-            tar.add(folder, arcname=spec["label"])
-        result["archive"] = buffer.getvalue()
+        result["archive"] = pack(folder, spec["label"])
     shutil.rmtree(work, ignore_errors=True)
     return result
+
+
+def pack(folder: Path, name: str) -> bytes:
+    """A results folder as a gzipped tar archive whose one folder is `name` (how a search
+    that ran on another node sends its folder back)."""
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w:gz") as tar:
+        tar.add(folder, arcname=name)
+    return buffer.getvalue()
+
+
+def unpack(archive: bytes, into: Path) -> None:
+    """Unpack an archive made by `pack` into the folder `into`."""
+    with tarfile.open(fileobj=io.BytesIO(archive), mode="r:gz") as tar:
+        # The "data" filter (no links out, no devices) where Python has it (3.11.4+).
+        safe = {"filter": "data"} if hasattr(tarfile, "data_filter") else {}
+        tar.extractall(into, **safe)
 
 
 def _failure(result: dict[str, Any]) -> str:
@@ -455,8 +469,7 @@ def run_sweep(args) -> int:
             row = rows[task.label]
             row["attempts"] = result["attempt"]
             if "archive" in result:
-                with tarfile.open(fileobj=io.BytesIO(result.pop("archive")), mode="r:gz") as tar:
-                    tar.extractall(sweep, filter="data")
+                unpack(result.pop("archive"), sweep)
                 result["folder"] = task.label
             if "folder" in result:
                 _finished(row, sweep / result["folder"], result)
@@ -597,12 +610,13 @@ def _write_tables(sweep: Path, rows: dict[str, dict], header: dict, seconds: flo
     done = sum(r["status"] == "ok" for r in table)
     failed = sum(r["status"] == "failed" for r in table)
     lines = [
-        f"# Sweep: {len(table)} searches ({header['configs']} configs x {header['seeds']} "
-        f"seeds x {header['sets']} override sets)",
+        f"# Sweep: {_n(len(table), 'search', 'searches')} ({_n(header['configs'], 'config')} "
+        f"x {_n(header['seeds'], 'seed')} x {_n(header['sets'], 'override set')})",
         "",
-        f"On {header['where']}, {header['cpus_per_task']} CPU(s) per search; "
+        f"On {header['where']}, {_n(header['cpus_per_task'], 'CPU')} per search; "
         f"{done} finished, {failed} failed, {len(table) - done - failed} not finished; "
-        f"wall time {seconds:.1f} s.",
+        f"wall time {seconds:.1f} s. Each search is `python -m jaxmotion run CONFIG --seed "
+        f"SEED [--set OVERRIDE ...] --cpu-devices {header['cpus_per_task']}`.",
         "",
         "| config | seed | overrides | best fitness | check | wall time (s) | attempts | folder |",
         "|---|---|---|---|---|---|---|---|",
@@ -619,6 +633,10 @@ def _write_tables(sweep: Path, rows: dict[str, dict], header: dict, seconds: flo
     if notes:
         lines += ["", "## Failures and retries", "", *notes]
     _atomic_write(sweep / "sweep.md", "\n".join(lines) + "\n")
+
+
+def _n(count: int, word: str, plural: str | None = None) -> str:
+    return f"{count} {word if count == 1 else plural or word + 's'}"
 
 
 def _atomic_write(path: Path, text: str) -> None:
