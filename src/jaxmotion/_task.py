@@ -1,6 +1,8 @@
 """`Task`: body, world, controller family, objective and simulation settings, and the one hot
 function `task.evaluate`."""
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -41,6 +43,13 @@ class Task(eqx.Module):
         around `initial_state` and score it by their mean (or worst) fitness, so a search
         finds controllers that work from wherever they start (the second paper's robust
         controllers); `evaluate` then needs a key. Default `None`: one start.
+    - `second_dt`: a second, shorter physics step (a whole fraction of the control period
+        `control_dt`, default `dt`; e.g. `dt / 2`): `evaluate` also simulates every
+        controller with it and scores it by the lower of the two fitnesses, so a search
+        keeps only motions that do not depend on the step (a contact-rich motion found at
+        one step can be an artefact of it, and fall apart under accurate integration; see
+        the README's "Motions that survive accurate physics"). It costs the second
+        simulation (`dt / second_dt` times the first). Default `None`: one step.
 
     **Raises:** `ValueError` for non-positive or inconsistent times, or an initial state
     that is not the body's, before any compilation.
@@ -56,6 +65,7 @@ class Task(eqx.Module):
     control_dt: float | None = eqx.field(static=True)
     initial_state: BodyState | None
     robustness: Robustness | None
+    second_dt: float | None = eqx.field(static=True)
 
     def __init__(
         self,
@@ -70,6 +80,7 @@ class Task(eqx.Module):
         control_dt: float | None = None,
         initial_state: BodyState | None = None,
         robustness: Robustness | None = None,
+        second_dt: float | None = None,
     ):
         if robustness is not None and not isinstance(robustness, Robustness):
             raise TypeError(
@@ -86,6 +97,8 @@ class Task(eqx.Module):
                     f"Task.{name} must be a {kind.__name__}; got {type(value).__name__}"
                 )
         time_grid(duration, dt, save_dt, control_dt)  # raises ValueError naming a bad time
+        if second_dt is not None:
+            _check_second_dt(duration, dt, save_dt, control_dt, second_dt)
         self.body = body
         self.world = world
         self.space = space
@@ -96,6 +109,7 @@ class Task(eqx.Module):
         self.control_dt = None if control_dt is None else float(control_dt)
         self.initial_state = None if initial_state is None else _body_state(body, initial_state)
         self.robustness = robustness
+        self.second_dt = None if second_dt is None else float(second_dt)
 
     def sample(self, num: int, *, key: PRNGKeyArray) -> AbstractController:
         """`num` random controllers of the task's family, stacked along a leading axis."""
@@ -131,7 +145,13 @@ class Task(eqx.Module):
         the mean or the worst of their fitness (a start that blows up scores `-inf`, and
         so does the controller). The same keys give the same fitness. Without
         `robustness`, `key` is not used.
+
+        With `second_dt`, the fitness is the lower of the fitness at `dt` and at
+        `second_dt` (each as above, from the same starts).
         """
+        if self.second_dt is not None:
+            first = _one_step(self).evaluate(params, chunk=chunk, key=key)
+            return jnp.minimum(first, self._at_second_dt().evaluate(params, chunk=chunk, key=key))
         if self.robustness is not None:
             return self._robust(params, chunk, key, sensed=False)
         return execution.run(_fitness, self, params, chunk=chunk)
@@ -146,10 +166,20 @@ class Task(eqx.Module):
         """`evaluate`, and the senses each controller perceived at the saved times
         (`AbstractController.perceive`): what a mutation with the second paper's relevance
         heuristic looks at. The fitness is bitwise `evaluate`'s. With `robustness`, the
-        senses are those of the first random start."""
+        senses are those of the first random start; with `second_dt`, those at `dt`."""
+        if self.second_dt is not None:
+            first, senses = _one_step(self).evaluate_sensed(params, chunk=chunk, key=key)
+            second = self._at_second_dt().evaluate(params, chunk=chunk, key=key)
+            return jnp.minimum(first, second), senses
         if self.robustness is not None:
             return self._robust(params, chunk, key, sensed=True)
         return execution.run(_fitness_and_senses, self, params, chunk=chunk)
+
+    def _at_second_dt(self) -> "Task":
+        """This task at its second step (the same control period), with no second step."""
+        return dataclasses.replace(
+            self, dt=self.second_dt, control_dt=self.control_dt or self.dt, second_dt=None
+        )
 
     def random_starts(self, key: PRNGKeyArray, batch: int | None = None) -> BodyState:
         """The starts `evaluate` simulates from with `robustness` (`Robustness.starts`
@@ -233,18 +263,7 @@ class Task(eqx.Module):
         """
         dt = self.dt if dt is None else dt
         save_dt = self.save_dt if save_dt is None else save_dt
-        task = Task(
-            self.body,
-            self.world,
-            self.space,
-            self.objective,
-            self.duration,
-            dt=dt,
-            save_dt=save_dt,
-            control_dt=self.control_dt,
-            initial_state=self.initial_state,
-            robustness=self.robustness,
-        )
+        task = dataclasses.replace(self, dt=dt, save_dt=save_dt, second_dt=None)
         if solver == "symplectic":
             one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], params)
             if isinstance(initial_state, SimulationState):
@@ -288,6 +307,28 @@ def _body_state(body: AbstractBody, state) -> BodyState:
                 f"have {jnp.shape(b)} (one body's state, no batch axis)"
             )
     return state
+
+
+def _one_step(task: Task) -> Task:
+    """The task without its second step."""
+    return dataclasses.replace(task, second_dt=None)
+
+
+def _check_second_dt(duration, dt, save_dt, control_dt, second_dt) -> None:
+    control = dt if control_dt is None else control_dt
+    if isinstance(second_dt, bool) or not isinstance(second_dt, int | float) or second_dt <= 0:
+        raise ValueError(f"second_dt = {second_dt!r}; allowed: a number of seconds > 0")
+    if second_dt >= dt:
+        raise ValueError(
+            f"second_dt = {second_dt!r} is not shorter than dt = {dt!r}; allowed: a shorter "
+            f"step that divides the control period {control!r} (e.g. {dt / 2!r})"
+        )
+    try:
+        time_grid(duration, second_dt, save_dt, control)
+    except ValueError as e:
+        raise ValueError(
+            f"second_dt = {second_dt!r} does not fit the control period {control!r}: {e}"
+        ) from e
 
 
 def _starting(task: Task, initial_state) -> Task:

@@ -356,6 +356,13 @@ SIMULATION = {
     "control_dt": Key(
         "number", None, _positive, "> 0 (s; the control period, a whole number of dt; default dt)"
     ),
+    "second_dt": Key(
+        "number",
+        None,
+        _positive,
+        "> 0 (s; a shorter step that divides the control period: each controller is also "
+        "simulated with it and scored by the lower fitness)",
+    ),
 }
 
 SEARCHER_NAMES = tuple(SEARCHERS)
@@ -890,16 +897,20 @@ def _parse_single(raw: Mapping[str, Any], name: str) -> Experiment:
             simulation_cfg.get("control_dt"),
         ),
     )
-    task = Task(
-        body,
-        world,
-        space,
-        objective,
-        duration=simulation_cfg["duration"],
-        dt=simulation_cfg["dt"],
-        save_dt=simulation_cfg["save_dt"],
-        control_dt=simulation_cfg.get("control_dt"),
-        robustness=None if robust_cfg is None else Robustness(**robust_cfg),
+    task = build(
+        "simulation",
+        lambda: Task(
+            body,
+            world,
+            space,
+            objective,
+            duration=simulation_cfg["duration"],
+            dt=simulation_cfg["dt"],
+            save_dt=simulation_cfg["save_dt"],
+            control_dt=simulation_cfg.get("control_dt"),
+            robustness=None if robust_cfg is None else Robustness(**robust_cfg),
+            second_dt=simulation_cfg.get("second_dt"),
+        ),
     )
     resolved.update(
         body=body_cfg,

@@ -574,19 +574,8 @@ def start_where(stage: Experiment, previous: Trajectory | BodyState | None) -> E
     # A copy of the values alone (bitwise): a state that comes out of a sharded call keeps
     # its sharding, and a task holding it would compile its simulations again.
     previous = jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)), previous)
-    task = stage.task
-    started = Task(
-        task.body,
-        task.world,
-        task.space,
-        task.objective,
-        task.duration,
-        dt=task.dt,
-        save_dt=task.save_dt,
-        control_dt=task.control_dt,
-        initial_state=previous,
-        robustness=task.robustness,
-    )
+    # Every other setting of the task is kept (robustness, second_dt, ...).
+    started = dataclasses.replace(stage.task, initial_state=previous)
     return dataclasses.replace(stage, task=started)
 
 
@@ -749,20 +738,11 @@ def fitness_of(task, controller) -> float:
     """A controller's fitness computed exactly as the search computed it: by `task.evaluate`
     (the objective compiled together with the simulation; summing a term's samples in another
     compiled function may round its last bit differently). For a task with robustness, the
-    fitness from the task's own start, unperturbed (the search scored random starts)."""
+    fitness from the task's own start, unperturbed (the search scored random starts); for a
+    task with `second_dt`, the lower of the fitnesses at its two steps, as the search scored."""
     one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], controller)
     if task.robustness is not None:
-        task = Task(
-            task.body,
-            task.world,
-            task.space,
-            task.objective,
-            task.duration,
-            task.dt,
-            task.save_dt,
-            control_dt=task.control_dt,
-            initial_state=task.initial_state,
-        )
+        task = dataclasses.replace(task, robustness=None)
     return float(task.evaluate(one)[0])
 
 
