@@ -48,12 +48,12 @@ def _kill_when_running(proc: subprocess.Popen, root: Path) -> int | None:
     return None
 
 
-def _plain_runs(tmp_path: Path) -> dict[str, Path]:
+def _plain_runs(tmp_path: Path, configs=CONFIGS) -> dict[str, Path]:
     """The same searches by `run` (`python -m jaxmotion run CONFIG --seed S --set ...
     --cpu-devices 1`, the CLI's `main` called as `python -m jaxmotion` calls it, in one
     process so that Python and JAX start once); their folders by the sweep's labels."""
     calls, labels = [], []
-    for config in CONFIGS:
+    for config in configs:
         for seed in SEEDS:
             out = tmp_path / "plain" / f"{config.stem}-{seed}"
             sets = [f"--set={s}" for s in SETS]
@@ -154,9 +154,13 @@ def _main(argv, capsys) -> tuple[int, str]:
             "[search] evaluations = -5; allowed: an integer",
         ),
         (["--set", "seed=1", "--set", "seed=1"], "--set 'seed=1' is given twice"),
+        (["--address", "headnode"], "--address 'headnode'; allowed: HOST:PORT of a running"),
+        # Port 1 on this machine: refused at once (Ray itself would keep trying for minutes).
+        (["--address", "127.0.0.1:1"], "--address '127.0.0.1:1': nothing answers at"),
+        (["--address", "127.0.0.1:1", "--local-cpus", "2"], "--local-cpus sizes the local Ray"),
     ],
 )
-def test_bad_seeds_and_sets_are_named_before_ray_starts(option, message, capsys, tmp_path):
+def test_bad_options_are_named_before_ray_starts(option, message, capsys, tmp_path):
     code, err = _main(["sweep", str(CONFIGS[0]), *option, "--out", str(tmp_path)], capsys)
     assert code == 2
     assert message in err
@@ -213,3 +217,33 @@ def test_a_folder_sent_back_from_another_node_arrives_whole(tmp_path):
     }
     assert arrived == files
     assert [p.name for p in into.iterdir()] == ["default-seed3"]
+
+
+@pytest.mark.slow
+def test_sweep_on_a_two_node_cluster(tmp_path):
+    """`--address`: a sweep on an existing cluster (two Ray nodes of one CPU each on this
+    machine, `ray.cluster_utils.Cluster`); the search that runs on the node the driver is
+    not attached to sends its folder back, and every folder equals the plain run's.
+    `python -m pytest -n0 -m slow tests/test_sweep.py` (about a minute)."""
+    from ray.cluster_utils import Cluster
+
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        command = [sys.executable, "-m", "jaxmotion", "sweep", str(CONFIGS[0]), "--seeds", "0-1"]
+        command += [*(f"--set={s}" for s in SETS), "--no-animation"]
+        command += ["--address", cluster.address, "--out", str(tmp_path / "sweeps")]
+        done = subprocess.run(
+            command, capture_output=True, text=True, timeout=SWEEP_TIMEOUT_S, check=False
+        )
+    finally:
+        cluster.shutdown()
+    assert done.returncode == 0, done.stderr
+    assert "sent back from" in done.stderr
+    sweep = Path(done.stdout.split()[-1])
+    for label, theirs in _plain_runs(tmp_path, CONFIGS[:1]).items():
+        ours = sweep / label
+        assert (ours / "history.csv").read_text() == (theirs / "history.csv").read_text()
+        best = json.loads((theirs / "summary.json").read_text())["best_fitness"]
+        assert json.loads((ours / "summary.json").read_text())["best_fitness"] == best

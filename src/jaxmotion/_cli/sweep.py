@@ -392,6 +392,7 @@ def _start_ray(args):
                 logging_level="ERROR",
             )
         return ray, f"a local Ray ({cpus} CPUs)"
+    _check_reachable(args.address)
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
@@ -408,6 +409,29 @@ def _start_ray(args):
     return ray, f"the Ray cluster at {args.address}"
 
 
+def _check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Fail fast on a `--address` where nothing listens (Ray itself keeps trying for
+    minutes). `auto` and `local` are left to Ray.
+
+    **Raises:** `ConfigError` naming the address and what is allowed."""
+    allowed = (
+        "allowed: HOST:PORT of a running Ray cluster's head (`ray start --head` prints it), "
+        "ray://HOST:PORT (Ray Client), or auto (the cluster this machine belongs to)"
+    )
+    if address in ("auto", "local"):
+        return
+    host, colon, port = address.removeprefix("ray://").rpartition(":")
+    if not colon or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"--address {address!r}; {allowed}")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise ConfigError(
+            f"--address {address!r}: nothing answers at {host}:{port} ({e.strerror or e}); "
+            f"{allowed}"
+        ) from None
+
+
 def run_sweep(args) -> int:
     """`python -m jaxmotion sweep`: plan and check every task, start (or join) Ray, run them,
     retry a failed one once, and write the summary as results arrive. Returns the exit
@@ -420,8 +444,12 @@ def run_sweep(args) -> int:
     say = (
         (lambda _: None) if args.quiet else (lambda line: print(f"sweep: {line}", file=sys.stderr))
     )
-    sweep = _new_sweep_folder(Path(args.out if args.out is not None else "results"))
     ray, where = _start_ray(args)
+    try:
+        sweep = _new_sweep_folder(Path(args.out if args.out is not None else "results"))
+    except BaseException:
+        ray.shutdown()
+        raise
     flags = ["--no-animation"] if args.no_animation else []
     flags += ["--checkpoint-every", str(args.checkpoint_every)]
     rows = {t.label: _row(t, "pending") for t in tasks}
@@ -450,7 +478,6 @@ def run_sweep(args) -> int:
         }
         return remote.remote(spec)
 
-    by_label = {t.label: t for t in tasks}
     pending = {submit(t, 1): t for t in tasks}
     failed = 0
     try:
@@ -468,19 +495,21 @@ def run_sweep(args) -> int:
                 result["attempt"] = rows[task.label]["attempts"] + 1
             row = rows[task.label]
             row["attempts"] = result["attempt"]
+            sent = ""
             if "archive" in result:
                 unpack(result.pop("archive"), sweep)
                 result["folder"] = task.label
+                sent = f" (sent back from {result['node']})"
             if "folder" in result:
                 _finished(row, sweep / result["folder"], result)
-                say(f"[{_count(rows)}/{len(tasks)}] {task.label}: {_verdict(row)}")
+                say(f"[{_count(rows)}/{len(tasks)}] {task.label}: {_verdict(row)}{sent}")
             else:
                 why = _failure(result)
                 row["failures"].append(f"attempt {result['attempt']}: {why}")
                 if result["attempt"] == 1:
                     row["status"] = "retrying"
                     say(f"{task.label}: attempt 1 {why}; retrying it once")
-                    pending[submit(by_label[task.label], 2)] = task
+                    pending[submit(task, 2)] = task
                 else:
                     failed += 1
                     row["status"] = "failed"
