@@ -2,6 +2,8 @@
 with a planted optimum (no simulation, so the whole file compiles little), and the evosax
 adapter on real controller spaces."""
 
+import json
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -14,9 +16,9 @@ from jaxtyping import Array, Float, Int
 import jaxmotion as jm
 from jaxmotion._cli.checkpoint import state_from_bytes, state_to_bytes
 from jaxmotion._control.base import AbstractController, AbstractControllerSpace
-from jaxmotion._search.evosax import _asked, minimised
+from jaxmotion._search.evosax import minimised
 from jaxmotion._search.protocol import finite_leaves
-from jaxmotion.experiment import ConfigError, load_config, parse_config
+from jaxmotion.experiment import ConfigError, load_config, parse_config, run_experiment
 
 TARGET = jnp.array([0.3, -0.5, 0.2, 0.7])  # the planted optimum, inside the bounds [-1, 1]
 
@@ -254,7 +256,7 @@ def test_the_cma_es_adapter_round_trips_parameters_exactly_and_respects_bounds(c
     template = eqx.filter(state.template, spec, inverse=True)
     for i in range(searcher.population):
         assert _same(_member(fixed, i), template)
-    raw = _asked(searcher, state)[2]  # the strategy's vectors, before projection
+    raw = state.pending  # the strategy's vectors, before projection
     if config == DEFAULT:
         assert bool(jnp.all((asked.times >= 0) & (asked.times <= task.space.t_per)))
         assert bool(jnp.all(jnp.abs(asked.coefficients) <= 1.0))
@@ -350,6 +352,13 @@ def test_an_evosax_config_runs_and_its_checkpoint_resumes_bitwise(tmp_path):
         searcher, experiment.task, key=None, steps=steps, state=state, history=history
     )
     np.testing.assert_array_equal(resumed.history.fitness, result.history.fitness)
+    # `run` drives the same searcher from the registry and writes its folder.
+    folder = run_experiment(
+        experiment, directory=tmp_path / "results", progress=False, animation=False
+    )
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["best_fitness"] == result.best_fitness
+    assert summary["evaluations"] == 24
 
 
 def test_compare_budgets_any_two_searchers_equally():
@@ -371,39 +380,25 @@ def test_compare_budgets_any_two_searchers_equally():
 
 def test_compare_runs_two_searchers_on_equal_budgets(tmp_path):
     """`compare CONFIG --against TOML`: the config's hill climbing against CMA-ES on the same
-    task and budget, the table and the folder written."""
+    task and budget, the table and the folder written (in this process: the task is the one
+    of the evosax config test above, so nothing new compiles)."""
+    import argparse
     import csv
-    import subprocess
-    import sys
+
+    from jaxmotion._cli.main import _compare_searchers
 
     config, against = tmp_path / "cube.toml", tmp_path / "cma.toml"
     raw = _raw({"size": 8, "batch": 8, "evaluations": 24})
-    raw["simulation"] = {"duration": 0.2, "dt": 0.002}
     config.write_text(tomli_w.dumps(raw))
     against.write_text(
         '[search]\nalgorithm = "evosax"\nstrategy = "CMA_ES"\npopulation = 8\nsize = 8\n'
     )
-    out = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "jaxmotion",
-            "compare",
-            str(config),
-            "--against",
-            str(against),
-            "--seeds",
-            "0,1",
-            "--out",
-            str(tmp_path / "out"),
-            "--quiet",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=600,
+    experiment = parse_config(raw, name="cube")
+    args = argparse.Namespace(
+        config=str(config), against=str(against), out=str(tmp_path / "out"), quiet=True
     )
-    assert out.returncode == 0, out.stderr
-    folder = tmp_path / "out" / out.stdout.strip().splitlines()[-1].split("/")[-1]
+    assert _compare_searchers(args, experiment, (0, 1)) == 0
+    (folder,) = (tmp_path / "out").iterdir()
     rows = list(csv.DictReader((folder / "compare.csv").open()))
     assert [(r["seed"], r["searcher"], r["simulations"]) for r in rows] == [
         ("0", "parallel_hill_climb", "32"),
@@ -411,14 +406,14 @@ def test_compare_runs_two_searchers_on_equal_budgets(tmp_path):
         ("1", "parallel_hill_climb", "32"),
         ("1", "evosax CMA_ES", "32"),
     ]
-    assert all(np.isfinite(float(r["best_fitness"])) for r in rows)
+    # Each is the search its [search] table runs on its own, from the seed's key.
+    alone = jm.parallel_hill_climb(experiment.task, key=jr.key(1), evaluations=24, size=8, batch=8)
+    assert float(rows[2]["best_fitness"]) == alone.best_fitness
+    cma = jm.drive(jm.Evosax(population=8, size=8), experiment.task, key=jr.key(0), steps=3)
+    assert float(rows[1]["best_fitness"]) == cma.best_fitness and len(cma.history) == 32
     assert "| evosax CMA_ES | 32 |" in (folder / "compare.md").read_text()
     bad = tmp_path / "bad.toml"
     bad.write_text('[search]\nalgorithm = "evosax"\nstrategy = "CMA"\n')
-    out = subprocess.run(
-        [sys.executable, "-m", "jaxmotion", "compare", str(config), "--against", str(bad)],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert out.returncode != 0 and "--against" in out.stderr and "strategy = 'CMA'" in out.stderr
+    args.against = str(bad)
+    with pytest.raises(ConfigError, match=r"--against .*bad.toml: \[search\] strategy = 'CMA'"):
+        _compare_searchers(args, experiment, (0,))

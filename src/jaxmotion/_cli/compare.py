@@ -18,7 +18,7 @@ import numpy as np
 from .._search.hill_climb import parallel_hill_climb
 from .._search.protocol import AbstractSearcher, SearchResult, drive
 from .._search.refine import Smoothing, gradient_cost, refine
-from .config import ConfigError, Experiment, make_searcher, search_evaluations
+from .config import SEARCHES, ConfigError, Experiment, search_evaluations
 
 
 @dataclass(frozen=True)
@@ -222,32 +222,19 @@ def budgeted(search: dict, budget: int) -> tuple[AbstractSearcher, int, int | No
     simulations it will make.
 
     **Raises:** `ConfigError` if even its initial set does not fit."""
-    searcher, _, _ = make_searcher(search)
-    if hasattr(searcher, "plan"):  # a budget of evaluations after the initial set
-        initial = search["size"]
-        if budget <= initial:
-            raise ConfigError(
-                f"compare: a budget of {budget} simulations leaves no step after the "
-                f"{search['algorithm']} initial set of {initial}; allowed: a larger budget"
-            )
+    config = SEARCHES[search["algorithm"]]
+    searcher = config.make(search)
+    initial, per_step = config.initial(search), config.per_step(search)
+    partial = hasattr(searcher, "plan")  # it can end within a step: exactly on the budget
+    if budget - initial < (1 if partial else per_step):
+        raise ConfigError(
+            f"compare: a budget of {budget} simulations leaves no step after the "
+            f"{search['algorithm']} initial set of {initial}; allowed: a larger budget"
+        )
+    if partial:
         steps, last = searcher.plan(budget - initial)
         return searcher, steps, last, budget
-    one = dict(search, generations=1)
-    per_step = search_evaluations(dict(search, generations=2)) - search_evaluations(one)
-    initial = search_evaluations(one) - (per_step if search["algorithm"] == "serial_search" else 0)
-    steps = (budget - initial) // per_step
-    if search["algorithm"] == "evolve":  # its generations count the random first one
-        if steps < 1:
-            raise ConfigError(
-                f"compare: a budget of {budget} simulations leaves no generation of evolve "
-                f"after its first of {initial}; allowed: a larger budget"
-            )
-        return searcher, steps, None, initial + steps * per_step
-    if steps < 1:
-        raise ConfigError(
-            f"compare: a budget of {budget} simulations leaves no generation of "
-            f"{search['algorithm']} after its initial set of {initial}; allowed: a larger budget"
-        )
+    steps = (budget - initial) // per_step  # the most whole steps that fit
     return searcher, steps, None, initial + steps * per_step
 
 

@@ -470,14 +470,109 @@ EVOSAX = {
     ),
 }
 
-SEARCHES = {
-    "parallel_hill_climb": SEARCH,
-    "serial_search": SERIAL_SEARCH,
-    "evolve": EVOLVE,
-    "evosax": EVOSAX,
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """What the config layer knows of a registered searcher (`jaxmotion.SEARCHERS`): its
+    [search] keys and how they make the searcher and its budget. A new searcher is
+    registered (`jaxmotion.register_searcher`) and gets one entry in `SEARCHES`.
+
+    - `keys`: the [search] schema (`algorithm` included).
+    - `make`: the searcher of a checked section.
+    - `steps`: the steps it makes after its `init`, and how many of the last one's
+        evaluations count (`None`: all).
+    - `initial`, `per_step`: the evaluations of its `init` and of one step.
+    - `width`: the controllers of one evaluation call, and the keys that make it (errors).
+    - `describe`: the section in words (the plan the CLI prints).
+    """
+
+    keys: dict[str, Key]
+    make: Callable[[Mapping[str, Any]], AbstractSearcher]
+    steps: Callable[[Mapping[str, Any]], tuple[int, int | None]]
+    initial: Callable[[Mapping[str, Any]], int]
+    per_step: Callable[[Mapping[str, Any]], int]
+    width: Callable[[Mapping[str, Any]], tuple[int, str]]
+    describe: Callable[[Mapping[str, Any]], str]
+
+
+def _hill_climb(s: Mapping[str, Any]) -> AbstractSearcher:
+    return SEARCHERS["parallel_hill_climb"](size=s["size"], batch=s["batch"])
+
+
+def _serial(s: Mapping[str, Any]) -> AbstractSearcher:
+    return SEARCHERS["serial_search"](
+        climbers=s["climbers"], reseed_every=s["reseed_every"], enrich=s["enrich"], seeds=s["runs"]
+    )
+
+
+def _evosax(s: Mapping[str, Any]) -> AbstractSearcher:
+    return SEARCHERS["evosax"](
+        strategy=s["strategy"],
+        population=s["population"],
+        size=s["size"],
+        std_init=s["std_init"],
+        learning_rate=s["learning_rate"],
+    )
+
+
+SEARCHES: dict[str, SearchConfig] = {
+    "parallel_hill_climb": SearchConfig(
+        keys=SEARCH,
+        make=_hill_climb,
+        steps=lambda s: _hill_climb(s).plan(s["evaluations"]),
+        initial=lambda s: s["size"],
+        per_step=lambda s: s["batch"],
+        width=lambda s: (s["batch"], f"batch = {s['batch']}"),
+        describe=lambda s: (
+            f"{s['evaluations']} evaluations, search set {s['size']}, batch {s['batch']}"
+        ),
+    ),
+    "serial_search": SearchConfig(
+        keys=SERIAL_SEARCH,
+        make=_serial,
+        steps=lambda s: (s["generations"], None),
+        initial=lambda s: s["runs"] * s["climbers"] * (1 + s["enrich"]),
+        per_step=lambda s: s["runs"] * s["climbers"],
+        width=lambda s: (
+            s["runs"] * s["climbers"],
+            f"runs = {s['runs']} x climbers = {s['climbers']}",
+        ),
+        describe=lambda s: (
+            f"serial search, {s['climbers']} climbers x {s['generations']} generations x "
+            f"{s['runs']} runs, reseeding every {s['reseed_every']}"
+        ),
+    ),
+    "evolve": SearchConfig(
+        keys=EVOLVE,
+        make=lambda s: SEARCHERS["evolve"](size=s["size"], mutations=s["mutations"]),
+        # Its generations count the random first one (`init`).
+        steps=lambda s: (s["generations"] - 1, None),
+        initial=lambda s: s["size"],
+        # Survivors keep their fitness: each later generation evaluates 4/5 of the size.
+        per_step=lambda s: s["size"] * 4 // 5,
+        width=lambda s: (s["size"] * 4 // 5, f"4/5 of size = {s['size']}"),
+        describe=lambda s: (
+            f"evolution, {s['generations']} generations of {s['size']} "
+            f"({search_evaluations(s)} evaluations), up to {s['mutations']} mutations per "
+            "offspring"
+        ),
+    ),
+    "evosax": SearchConfig(
+        keys=EVOSAX,
+        make=_evosax,
+        steps=lambda s: (s["generations"], None),
+        initial=lambda s: s["size"],
+        per_step=lambda s: s["population"],
+        width=lambda s: (s["population"], f"population = {s['population']}"),
+        describe=lambda s: (
+            f"evosax {s['strategy']}, {s['size']} random controllers then {s['generations']} "
+            f"generations of {s['population']} ({search_evaluations(s)} evaluations), "
+            f"std_init {s['std_init']}"
+        ),
+    ),
 }
-"""The [search] keys of every searcher of the registry (`jaxmotion._search.protocol.SEARCHERS`),
-by its name."""
+"""The [search] sections of every registered searcher, by its name."""
+assert set(SEARCHES) == set(SEARCHERS), "every registered searcher needs its [search] keys"
 
 ROBUSTNESS = {
     "samples": Key(
@@ -517,78 +612,32 @@ def _search_schema(table: Any) -> dict[str, Key]:
         if isinstance(table, Mapping)
         else "parallel_hill_climb"
     )
-    return SEARCHES.get(algorithm, SEARCH) if isinstance(algorithm, str) else SEARCH
+    config = SEARCHES.get(algorithm) if isinstance(algorithm, str) else None
+    return SEARCH if config is None else config.keys
 
 
 def make_searcher(search: Mapping[str, Any]) -> tuple[AbstractSearcher, int, int | None]:
     """The searcher a checked [search] section describes (from the registry), the steps it
     makes after its `init`, and how many of the last step's evaluations count (`None`: all):
-    what `jaxmotion._search.protocol.drive` takes."""
-    name = search["algorithm"]
-    cls = SEARCHERS[name]
-    if name == "serial_search":
-        searcher = cls(
-            climbers=search["climbers"],
-            reseed_every=search["reseed_every"],
-            enrich=search["enrich"],
-            seeds=search["runs"],
-        )
-        return searcher, search["generations"], None
-    if name == "evolve":
-        return (
-            cls(size=search["size"], mutations=search["mutations"]),
-            search["generations"] - 1,
-            None,
-        )
-    if name == "evosax":
-        searcher = cls(
-            strategy=search["strategy"],
-            population=search["population"],
-            size=search["size"],
-            std_init=search["std_init"],
-            learning_rate=search["learning_rate"],
-        )
-        return searcher, search["generations"], None
-    searcher = cls(size=search["size"], batch=search["batch"])
-    return (searcher, *searcher.plan(search["evaluations"]))
+    what `jaxmotion.drive` takes."""
+    config = SEARCHES[search["algorithm"]]
+    return (config.make(search), *config.steps(search))
 
 
 def search_evaluations(search: Mapping[str, Any]) -> int:
     """How many simulations a checked [search] section asks for (initial sets included)."""
-    if search["algorithm"] == "serial_search":
-        rounds = 1 + search["enrich"] + search["generations"]
-        return search["runs"] * search["climbers"] * rounds
-    if search["algorithm"] == "evolve":
-        # Survivors keep their fitness: each later generation evaluates 4/5 of the size.
-        return search["size"] + (search["generations"] - 1) * (search["size"] * 4 // 5)
-    if search["algorithm"] == "evosax":
-        return search["size"] + search["generations"] * search["population"]
-    return search["size"] + search["evaluations"]
+    config = SEARCHES[search["algorithm"]]
+    steps, last = config.steps(search)
+    if steps == 0:
+        return config.initial(search)
+    per_step = config.per_step(search)
+    return config.initial(search) + (steps - 1) * per_step + (per_step if last is None else last)
 
 
 def search_plan(search: Mapping[str, Any]) -> str:
     """A checked [search] section in words, e.g. "serial search, 10 climbers x 1000
     generations x 1 runs, reseeding every 200"."""
-    if search["algorithm"] == "serial_search":
-        return (
-            f"serial search, {search['climbers']} climbers x {search['generations']} "
-            f"generations x {search['runs']} runs, reseeding every {search['reseed_every']}"
-        )
-    if search["algorithm"] == "evolve":
-        return (
-            f"evolution, {search['generations']} generations of {search['size']} "
-            f"({search_evaluations(search)} evaluations), up to {search['mutations']} "
-            "mutations per offspring"
-        )
-    if search["algorithm"] == "evosax":
-        return (
-            f"evosax {search['strategy']}, {search['size']} random controllers then "
-            f"{search['generations']} generations of {search['population']} "
-            f"({search_evaluations(search)} evaluations), std_init {search['std_init']}"
-        )
-    return (
-        f"{search['evaluations']} evaluations, search set {search['size']}, batch {search['batch']}"
-    )
+    return SEARCHES[search["algorithm"]].describe(search)
 
 
 EXPORT_FORMATS = ("bvh", "usd")  # what `[output] export` and `python -m jaxmotion export` write
@@ -783,15 +832,7 @@ def _check_steps(simulation: Mapping[str, Any]) -> None:
 def _check_width(search: Mapping[str, Any], simulation: Mapping[str, Any]) -> None:
     """At most `MAX_BATCH` controllers and `MAX_SAVED` saved samples in one evaluation call
     (its trajectories are held in memory at once)."""
-    if search["algorithm"] == "serial_search":
-        width = search["runs"] * search["climbers"]
-        what = f"runs = {search['runs']} x climbers = {search['climbers']}"
-    elif search["algorithm"] == "evolve":
-        width, what = search["size"] * 4 // 5, f"4/5 of size = {search['size']}"
-    elif search["algorithm"] == "evosax":
-        width, what = search["population"], f"population = {search['population']}"
-    else:
-        width, what = search["batch"], f"batch = {search['batch']}"
+    width, what = SEARCHES[search["algorithm"]].width(search)
     if width > MAX_BATCH:
         raise ConfigError(
             f"[search] {what} = {width} controllers in one call; allowed: at most {MAX_BATCH}"

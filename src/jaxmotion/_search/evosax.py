@@ -74,7 +74,11 @@ class EvosaxState(eqx.Module):
     - `template`: the controller whose fixed (non-trainable, discrete) parts every candidate
         shares: the best of the random set.
     - `scale`: the power of two each coordinate of the strategy's vector is measured in.
-    - `strategy`: the strategy's own state (evosax's dataclass; a pytree of arrays).
+    - `strategy`: the strategy's own state (evosax's dataclass; a pytree of arrays), as it
+        is after asking for the next generation.
+    - `pending`: the next generation's vectors, `(population, dims)`, asked when the state
+        was made (`tell` asks for the next at once: CMA-ES decomposes its covariance when
+        asked, once per generation).
     - `best`, `best_fitness`: the best controller evaluated so far and its fitness (`-inf`
         while none is finite).
     - `key`: the PRNG key; step `k` draws from `fold_in(key, k)`.
@@ -85,6 +89,7 @@ class EvosaxState(eqx.Module):
     template: AbstractController
     scale: Float[Array, " dims"]
     strategy: Any
+    pending: Float[Array, "population dims"]
     best: AbstractController
     best_fitness: Float[Array, ""]
     key: PRNGKeyArray
@@ -283,10 +288,12 @@ def _start(search: Evosax, task: Task, population, fitness, key) -> EvosaxState:
     es, params = search._es(scale.shape[0])
     init_key, run_key = jr.split(key)
     strategy = es.init(init_key, _flatten(task, template) / scale, params)
+    pending, strategy = es.ask(_keys(run_key, 0)[0], strategy, params)
     return EvosaxState(
         template=template,
         scale=scale,
         strategy=strategy,
+        pending=pending,
         best=template,
         best_fitness=fitness[best],
         key=run_key,
@@ -295,19 +302,16 @@ def _start(search: Evosax, task: Task, population, fitness, key) -> EvosaxState:
     )
 
 
-def _asked(search: Evosax, state: EvosaxState):
-    """The generation's vectors and the strategy's state after asking (CMA-ES decomposes its
-    covariance there); `tell` asks again with the same key rather than carry them."""
-    es, params = search._es(state.scale.shape[0])
-    ask_key, tell_key = jr.split(jr.fold_in(state.key, state.step))
-    vectors, strategy = es.ask(ask_key, state.strategy, params)
-    return es, params, vectors, strategy, tell_key
+def _keys(key, step):
+    """The keys of step `step`: the ask's (made when the step before was told) and the
+    tell's."""
+    return jr.split(jr.fold_in(key, step))
 
 
 @eqx.filter_jit
 def _ask(search: Evosax, task: Task, state: EvosaxState):
-    _, _, vectors, _, _ = _asked(search, state)
-    return jax.vmap(lambda v: _unflatten(task, state.template, v * state.scale))(vectors)
+    del search
+    return jax.vmap(lambda v: _unflatten(task, state.template, v * state.scale))(state.pending)
 
 
 def minimised(fitness, valid) -> jax.Array:
@@ -322,10 +326,14 @@ def minimised(fitness, valid) -> jax.Array:
 
 @eqx.filter_jit
 def _tell(search: Evosax, state: EvosaxState, candidates, fitness, num_valid) -> EvosaxState:
-    es, params, vectors, strategy, tell_key = _asked(search, state)
+    es, params = search._es(state.scale.shape[0])
     valid = jnp.arange(search.population) < num_valid
     fitness = jnp.where(valid, finite_fitness(candidates, fitness), -jnp.inf)
-    strategy, _ = es.tell(tell_key, vectors, minimised(fitness, valid), strategy, params)
+    told = minimised(fitness, valid)
+    strategy, _ = es.tell(
+        _keys(state.key, state.step)[1], state.pending, told, state.strategy, params
+    )
+    pending, strategy = es.ask(_keys(state.key, state.step + 1)[0], strategy, params)
     i = jnp.argmax(fitness)
     better = fitness[i] > state.best_fitness  # strictly: ties keep the incumbent
     best = jax.tree_util.tree_map(
@@ -335,6 +343,7 @@ def _tell(search: Evosax, state: EvosaxState, candidates, fitness, num_valid) ->
         template=state.template,
         scale=state.scale,
         strategy=strategy,
+        pending=pending,
         best=best,
         best_fitness=jnp.where(better, fitness[i], state.best_fitness),
         key=state.key,
