@@ -220,6 +220,7 @@ def test_a_folder_sent_back_from_another_node_arrives_whole(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # Ray's processes, started here
 def test_sweep_on_a_two_node_cluster(tmp_path):
     """`--address`: a sweep on an existing cluster (two Ray nodes of one CPU each on this
     machine, `ray.cluster_utils.Cluster`); the search that runs on the node the driver is

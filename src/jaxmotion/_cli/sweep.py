@@ -20,6 +20,7 @@ import itertools
 import json
 import os
 import re
+import shlex
 import shutil
 import signal
 import socket
@@ -476,6 +477,7 @@ def run_sweep(args) -> int:
             "text": task.config.read_text(),
             "options": [*task.run_options(args.cpus_per_task), *flags],
         }
+        rows[task.label]["attempts"] = attempt
         return remote.remote(spec)
 
     pending = {submit(t, 1): t for t in tasks}
@@ -492,9 +494,8 @@ def run_sweep(args) -> int:
                     "label": task.label,
                     "error": f"{type(e).__name__}: {lines[0] if lines else ''}",
                 }
-                result["attempt"] = rows[task.label]["attempts"] + 1
+                result["attempt"] = rows[task.label]["attempts"]
             row = rows[task.label]
-            row["attempts"] = result["attempt"]
             sent = ""
             if "archive" in result:
                 unpack(result.pop("archive"), sweep)
@@ -522,6 +523,11 @@ def run_sweep(args) -> int:
         for ref, task in pending.items():
             ray.cancel(ref, force=True)
             rows[task.label]["status"] = "interrupted"
+            out = sweep / f".{task.label}.task" / "out"
+            if any(out.glob("*.checkpoint")):  # run on this machine, and saved
+                argv = ["run", str(task.config), *task.run_options(args.cpus_per_task)]
+                command = shlex.join(["python", "-m", "jaxmotion", *argv, "--resume", str(out)])
+                rows[task.label]["failures"].append(f"interrupted; continue it with: {command}")
         _write_tables(sweep, rows, header, time.perf_counter() - started)
         print(
             f"sweep interrupted; the finished searches and the table so far are in {sweep}",
