@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -116,10 +117,14 @@ def test_sweep_equals_runs_and_retries_a_killed_task(tmp_path):
     # Each folder is the plain run's: the same files, the same resolved config, the same
     # fitness for every evaluation, the same best fitness (exactly: the same program).
     plain = _plain_runs(tmp_path)
+    seeds = {f"{c.stem}-seed{s}": s for s in SEEDS for c in CONFIGS}
     for label in labels:
         ours, theirs = sweep / label, plain[label]
         assert sorted(p.name for p in ours.iterdir()) == sorted(p.name for p in theirs.iterdir())
         assert (ours / "config.toml").read_text() == (theirs / "config.toml").read_text()
+        resolved = tomllib.loads((ours / "config.toml").read_text())  # --set took effect
+        assert (resolved["seed"], resolved["search"]["evaluations"]) == (seeds[label], 100)
+        assert (resolved["search"]["batch"], resolved["simulation"]["duration"]) == (20, 1.0)
         assert (ours / "history.csv").read_text() == (theirs / "history.csv").read_text()
         best = json.loads((theirs / "summary.json").read_text())["best_fitness"]
         assert json.loads((ours / "summary.json").read_text())["best_fitness"] == best
@@ -248,3 +253,13 @@ def test_sweep_on_a_two_node_cluster(tmp_path):
         assert (ours / "history.csv").read_text() == (theirs / "history.csv").read_text()
         best = json.loads((theirs / "summary.json").read_text())["best_fitness"]
         assert json.loads((ours / "summary.json").read_text())["best_fitness"] == best
+
+
+def test_without_ray_sweep_names_the_extra(monkeypatch, capsys, tmp_path):
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as if not installed
+    code, err = _main(["sweep", str(CONFIGS[0]), "--out", str(tmp_path)], capsys)
+    assert code == 2
+    assert (
+        "sweep runs its searches on Ray; install it with: pip install 'jaxmotion[cluster]'" in err
+    )
+    assert not any(tmp_path.iterdir())
