@@ -4,6 +4,7 @@ One sweep on a local Ray with 2 workers (2 configs x 2 seeds, tiny budgets), one
 runs is SIGKILLed mid-run; its folders are compared with plain `run`s of the same config,
 seed and overrides. Bad --seeds and --set fail before Ray starts."""
 
+import argparse
 import csv
 import json
 import os
@@ -263,3 +264,24 @@ def test_without_ray_sweep_names_the_extra(monkeypatch, capsys, tmp_path):
         "sweep runs its searches on Ray; install it with: pip install 'jaxmotion[cluster]'" in err
     )
     assert not any(tmp_path.iterdir())
+
+
+def test_plan_is_seed_major_and_a_set_seed_is_the_seed():
+    from jaxmotion._cli.sweep import _plan
+
+    def plan(seeds, sets):
+        args = argparse.Namespace(config=[str(c) for c in CONFIGS], seeds=seeds, set=sets)
+        return [(t.label, t.seed, t.overrides) for t in _plan(args)]
+
+    assert plan("3,1", ["search.size=50"]) == [
+        ("default-seed3", 3, "search.size=50"),
+        ("spider_leap-seed3", 3, "search.size=50"),
+        ("default-seed1", 1, "search.size=50"),
+        ("spider_leap-seed1", 1, "search.size=50"),
+    ]
+    assert plan(None, ["seed=4", "seed=7"]) == [
+        ("default-seed4-set1", 4, "seed=4"),
+        ("default-seed7-set2", 7, "seed=7"),
+        ("spider_leap-seed4-set1", 4, "seed=4"),
+        ("spider_leap-seed7-set2", 7, "seed=7"),
+    ]

@@ -339,13 +339,13 @@ def _plan(args) -> list[Task]:
             f"{count} searches (configs x seeds x override sets); allowed: at most "
             f"{MAX_TASKS} in one sweep"
         )
-    own_seed = {}
+    own_seed = {}  # (config, override set's index) -> its seed (--set seed=S sets it)
     for path in configs:
-        for sets in settings:
+        for k, sets in enumerate(settings, start=1):
             keep = argparse.Namespace(
                 seed=None, evaluations=None, batch=None, runs=None, set=[s.text for s in sets]
             )
-            own_seed[path] = _load(path, keep).seed
+            own_seed[path, k] = _load(path, keep).seed
     stems = [c.stem for c in configs]
     tasks = []
     for seed_index in range(len(seeds) if seeds is not None else 1):
@@ -353,7 +353,7 @@ def _plan(args) -> list[Task]:
             # Two configs of one name (in different folders) get their place as a prefix.
             stem = stems[i] if stems.count(stems[i]) == 1 else f"{i + 1}-{stems[i]}"
             for k, sets in enumerate(settings, start=1):
-                seed = seeds[seed_index] if seeds is not None else own_seed[path]
+                seed = seeds[seed_index] if seeds is not None else own_seed[path, k]
                 label = f"{stem}-seed{seed}" + (f"-set{k}" if len(settings) > 1 else "")
                 tasks.append(Task(path, seed, sets, label))
     return tasks
