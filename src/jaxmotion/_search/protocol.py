@@ -28,7 +28,6 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import equinox as eqx
-import jax
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
@@ -238,12 +237,3 @@ def drive(
         if bar is not None:
             bar.close()
     return searcher.result(state, _histories(chunks, runs))
-
-
-def finite_leaves(state) -> bool:
-    """Whether no floating leaf of `state` holds a NaN (a searcher's invariant)."""
-    return all(
-        not np.any(np.isnan(np.asarray(a)))
-        for a in jax.tree_util.tree_leaves(state)
-        if hasattr(a, "dtype") and jax.numpy.issubdtype(a.dtype, jax.numpy.inexact)
-    )
