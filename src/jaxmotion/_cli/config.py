@@ -379,6 +379,13 @@ SEARCH = {
     ),
     "size": Key("integer", 100, lambda v: 1 <= v <= MAX_BATCH, f">= 1, at most {MAX_BATCH}"),
     "batch": Key("integer", 1, lambda v: 1 <= v <= MAX_BATCH, f">= 1, at most {MAX_BATCH}"),
+    "accurate_candidates": Key(
+        "integer",
+        0,
+        lambda v: 0 <= v <= MAX_BATCH,
+        f">= 0, at most {MAX_BATCH} (the final set's fittest, replayed accurately to choose "
+        "the best; 0: off)",
+    ),
 }
 
 SERIAL_SEARCH = {

@@ -497,6 +497,16 @@ def _run(path: Path, args) -> int:
                 "blew up (non-finite; scored -inf)",
                 file=sys.stderr,
             )
+        accurate = summary.get("accurate")
+        if accurate and accurate.get("candidates"):
+            print(
+                f"accurate replay (float64 Dopri5) of the {accurate['candidates']} fittest: "
+                f"chose #{accurate['chosen_rank'] + 1}, fitness {_short(accurate['fitness'])} "
+                f"(accurately {_short(accurate['accurate_fitness'])}; the fittest's: "
+                f"{_short(accurate['search_best_fitness'])}, accurately "
+                f"{_short(accurate['search_best_accurate_fitness'])})",
+                file=sys.stderr,
+            )
         if summary.get("check"):
             print(_check_lines(summary["check"]), file=sys.stderr)
         if summary.get("runs"):

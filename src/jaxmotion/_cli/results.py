@@ -300,7 +300,66 @@ def _run_search(
     if len(marks) > 2:
         steady = sum(n for _, n in marks[2:])
         timing["steady_evals_per_s"] = steady / (marks[-1][0] - marks[1][0])
+    candidates = s.get("accurate_candidates", 0)
+    if candidates:
+        started = time.perf_counter()
+        result, timing["accurate"] = pick_accurate(experiment.task, result, candidates)
+        timing["accurate"]["seconds"] = round(time.perf_counter() - started, 3)
     return result, timing
+
+
+ACCURATE = {"solver": "dopri5", "rtol": 1e-8, "atol": 1e-10}
+"""The accurate replay `[search] accurate_candidates` scores by: float64, Dopri5, tight
+tolerances (`benchmarks/accurate_replay.py` measures found motions the same way)."""
+
+
+def _float64(tree):
+    return jax.tree_util.tree_map(
+        lambda a: (
+            jnp.asarray(a, jnp.float64)
+            if isinstance(a, jax.Array | np.ndarray) and jnp.issubdtype(a.dtype, jnp.floating)
+            else a
+        ),
+        tree,
+    )
+
+
+def accurate_fitness(task: Task, controller: AbstractController) -> float:
+    """The fitness of one controller's motion replayed accurately (`ACCURATE`: float64,
+    Dopri5 at rtol 1e-8, atol 1e-10), from the task's own start; `-inf` if it blows up."""
+    with jax.enable_x64(True):
+        task64, controller64 = _float64(task), _float64(controller)
+        trajectory = task64.simulate(controller64, **ACCURATE)
+        fitness = float(task64.objective(trajectory))
+    return fitness if math.isfinite(fitness) and bool(trajectory.finite) else -math.inf
+
+
+def pick_accurate(task: Task, result: SearchResult, k: int) -> tuple[SearchResult, dict]:
+    """Choose the best controller among the `k` fittest of the search's final set by
+    their accurate replay (`accurate_fitness`): the one whose lower fitness of the two (the
+    search's, the accurate replay's) is highest, so that the motion an animator re-simulates
+    with an accurate integrator is the motion the search found (a fixed step can reward an
+    artefact of itself). Returns the result with that controller as its best (its fitness
+    the search's) and what was measured."""
+    population, fitness = result.state.population, np.asarray(result.state.fitness)
+    order = [int(i) for i in np.argsort(-fitness, kind="stable") if np.isfinite(fitness[i])]
+    rows = []
+    for i in order[:k]:
+        one = jax.tree_util.tree_map(lambda a, i=i: a[i], population)
+        rows.append((i, float(fitness[i]), accurate_fitness(task, one)))
+    if not rows:
+        return result, {"candidates": 0}
+    chosen = max(rows, key=lambda r: min(r[1], r[2]))
+    best = jax.tree_util.tree_map(lambda a: a[chosen[0]], population)
+    measured = {
+        "candidates": len(rows),
+        "chosen_rank": [r[0] for r in rows].index(chosen[0]),
+        "fitness": chosen[1],
+        "accurate_fitness": _json_number(chosen[2]),
+        "search_best_fitness": _json_number(result.best_fitness),
+        "search_best_accurate_fitness": _json_number(rows[0][2]),
+    }
+    return dataclasses.replace(result, best=best, best_fitness=chosen[1]), measured
 
 
 _PARTIAL = re.compile(r"^\..+\.pid(\d+)\.[^.]+\.partial$")
@@ -545,6 +604,7 @@ def _search_and_write(
         else None,
         "check": None if check is None else check.to_dict(),
         "runs": per_run,
+        "accurate": timing.get("accurate"),
         "devices": len(jax.devices()),
         "float": str(jnp.result_type(float)),
         "jax": jax.__version__,

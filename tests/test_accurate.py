@@ -1,0 +1,72 @@
+"""`[search] accurate_candidates`: the final set's fittest replayed accurately (float64,
+Dopri5, tight tolerances) and the best chosen by the lower of its two fitnesses."""
+
+import math
+
+import jax
+import jax.random as jr
+import numpy as np
+import pytest
+
+import jaxmotion as jm
+from jaxmotion._cli.results import accurate_fitness, pick_accurate
+from jaxmotion.experiment import ConfigError, parse_config
+
+# The float32 task's constants (lattice geometry) stay float32 when its arrays are widened:
+# against a task built in float64 from the start, the accurate fitness agrees to about
+# float32's resolution.
+GEOMETRY_TOLERANCE = 1e-5
+
+
+def _task():
+    return jm.Task(
+        jm.lattices.cube(),
+        jm.World(),
+        jm.RegimesSpace(4, 0.25),
+        jm.Objective({"forward": 1.0, "max_height": 0.5}),
+        duration=0.4,
+    )
+
+
+def test_the_best_is_chosen_by_the_lower_of_its_two_fitnesses():
+    task = _task()
+    result = jm.parallel_hill_climb(task, key=jr.key(0), evaluations=48, size=16, batch=16)
+    picked, measured = pick_accurate(task, result, 3)
+    fitness = np.asarray(result.state.fitness)
+    top = np.argsort(-fitness, kind="stable")[:3]
+    rows = []
+    for i in top:
+        one = jax.tree_util.tree_map(lambda a, i=i: a[i], result.state.population)
+        rows.append((float(fitness[i]), accurate_fitness(task, one), one))
+    scores = [min(f, a) for f, a, _ in rows]
+    chosen = int(np.argmax(scores))
+    assert measured["candidates"] == 3 and measured["chosen_rank"] == chosen
+    assert picked.best_fitness == rows[chosen][0]
+    assert measured["accurate_fitness"] == rows[chosen][1]
+    assert measured["search_best_fitness"] == result.best_fitness
+    for a, b in zip(jax.tree.leaves(picked.best), jax.tree.leaves(rows[chosen][2]), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # The accurate fitness is a float64 adaptive replay: a task built in float64 agrees.
+    with jax.enable_x64(True):
+        task64 = _task()
+        one = jax.tree_util.tree_map(
+            lambda a: np.asarray(a, np.float64) if np.issubdtype(a.dtype, np.floating) else a,
+            rows[0][2],
+        )
+        trajectory = task64.simulate(one, solver="dopri5", rtol=1e-8, atol=1e-10)
+        reference = float(task64.objective(trajectory))
+    assert math.isclose(rows[0][1], reference, rel_tol=GEOMETRY_TOLERANCE, abs_tol=1e-7)
+
+
+def test_the_config_key():
+    raw = {
+        "simulation": {"duration": 1.0},
+        "objective": {"forward": 1.0},
+        "search": {"accurate_candidates": 10},
+    }
+    assert parse_config(raw).search["accurate_candidates"] == 10
+    raw["search"]["accurate_candidates"] = -1
+    with pytest.raises(
+        ConfigError, match=r"\[search\] accurate_candidates = -1; allowed: an integer >= 0"
+    ):
+        parse_config(raw)
