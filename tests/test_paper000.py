@@ -70,7 +70,10 @@ def test_each_motion_config_runs_and_writes_everything(config, tmp_path):
     extra = () if animated else ("--no-animation",)
     # Batches of the config's 100, as the notebook runs them: the CLI and the notebook kernel
     # compile the same programs, and whichever runs second finds them in the tests' cache.
-    folder = run(config, tmp_path, "--evaluations", "100", *extra)
+    # The config's accurate pick (100 float64 replays) cut to 2: the same path, in seconds.
+    folder = run(
+        config, tmp_path, "--evaluations", "100", "--set", "search.accurate_candidates=2", *extra
+    )
     files = FILES if animated else FILES - {"motion.gif"}
     assert {p.name for p in folder.iterdir()} == files
     assert all((folder / name).stat().st_size > 0 for name in files)
@@ -85,6 +88,9 @@ def test_each_motion_config_runs_and_writes_everything(config, tmp_path):
     assert isinstance(check["passed"], bool)
     assert check["passed"] == all(check["criteria"].values())
     assert summary["replay_fitness"] == summary["best_fitness"]
+    accurate = summary["accurate"]
+    assert accurate["candidates"] == 2 and accurate["fitness"] == summary["best_fitness"]
+    assert summary["best_fitness"] <= accurate["search_best_fitness"]
 
 
 @pytest.mark.slow
