@@ -54,6 +54,22 @@ def task_for(weights, duration=0.3):
     )
 
 
+def _assert_central_differences(grad, params, fitness):
+    """`grad` (of `Regimes`) against central differences of `fitness` (a batch's fitness)
+    in every trainable coordinate."""
+    for field in ("times", "coefficients"):
+        g = np.asarray(getattr(grad, field))
+        base = np.asarray(getattr(params, field))
+        for c in range(base.shape[1]):
+            step = np.zeros_like(base)
+            step[:, c] = FD_STEP
+            up = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base + step))
+            down = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base - step))
+            fd = (up - down) / (2 * FD_STEP)
+            scale = max(1.0, float(np.max(np.abs(g))))
+            np.testing.assert_allclose(g[:, c], fd, rtol=FD_RTOL, atol=FD_RTOL * scale)
+
+
 # The rotation objective differentiates the same simulation as the translation one (the
 # gradients of `rotation` and `final_tilt` themselves are checked against differences in
 # test_objectives.py); one more gradient compile: `-m slow`.
@@ -68,17 +84,7 @@ def test_gradients_agree_with_central_differences(term, x64):
     def fitness(p):
         return np.asarray(jm.fitness_and_gradient(task, p, smoothing=SMOOTH)[0])
 
-    for field in ("times", "coefficients"):
-        g = np.asarray(getattr(grad, field))
-        base = np.asarray(getattr(params, field))
-        for c in range(base.shape[1]):
-            step = np.zeros_like(base)
-            step[:, c] = FD_STEP
-            up = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base + step))
-            down = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base - step))
-            fd = (up - down) / (2 * FD_STEP)
-            scale = max(1.0, float(np.max(np.abs(g))))
-            np.testing.assert_allclose(g[:, c], fd, rtol=FD_RTOL, atol=FD_RTOL * scale)
+    _assert_central_differences(grad, params, fitness)
     assert grad.reflexes is None and grad.t_per is None  # discrete and fixed: not trained
 
 
@@ -134,6 +140,62 @@ def test_refine_improves_the_smoothed_objective_from_a_fixed_start(x64):
     np.testing.assert_array_equal(np.asarray(task.evaluate(best)), result.fitness)
 
 
+def test_final_phase_gradient_is_the_gradient_of_the_held_motion(x64):
+    """`final_phase = h` differentiates the fitness of the motion whose first `T - h`
+    seconds are those of the given controllers, held, and whose rest is simulated by the
+    controllers varied, from where the held part ended: checked against central
+    differences of exactly that, built from a simulation and its continuation."""
+    from jaxmotion._sim.simulate import simulate_batch
+
+    task = task_for(SHARED)  # 0.3 s, samples every 20 ms
+    held, phase = 0.2, 0.1
+    params = task.sample(3, key=jr.key(5))
+    _, grad = jm.fitness_and_gradient(task, params, smoothing=SMOOTH, final_phase=phase)
+    world = SMOOTH.task(task).world
+    blended = jax.vmap(SMOOTH.controllers)
+    early = simulate_batch(task.body, blended(params), world, held)
+
+    def fitness(p):
+        late = simulate_batch(task.body, blended(p), world, phase, initial_state=early.final)
+        whole = jax.tree_util.tree_map(
+            lambda a, b: jnp.concatenate([a, b[:, 1:]], axis=1),
+            (early.ts, early.points, early.com, early.frame, early.contact),
+            (late.ts, late.points, late.com, late.frame, late.contact),
+        )
+        trajectory = jm.Trajectory(*whole, finite=early.finite & late.finite, final=late.final)
+        return np.asarray(jax.vmap(task.objective)(trajectory))
+
+    _assert_central_differences(grad, params, fitness)
+    # The whole motion as the final phase is the whole gradient.
+    _, whole = jm.fitness_and_gradient(task, params, smoothing=SMOOTH, final_phase=0.3)
+    _, plain = jm.fitness_and_gradient(task, params, smoothing=SMOOTH)
+    np.testing.assert_array_equal(np.asarray(whole.coefficients), np.asarray(plain.coefficients))
+    assert not np.allclose(np.asarray(grad.coefficients), np.asarray(plain.coefficients))
+
+
+def test_smoothing_schedules():
+    smooth = jm.Smoothing(regime_width=0.06, friction_velocity=0.3)
+    assert smooth.annealed(3) == (
+        smooth,
+        jm.Smoothing(regime_width=0.03, friction_velocity=0.15),
+        jm.Smoothing(),
+    )
+    from jaxmotion._search.refine import _schedule
+
+    stages = smooth.annealed(3)
+    assert _schedule(stages, 5) == [stages[0], stages[0], stages[1], stages[1], stages[2]]
+    assert _schedule(smooth, 2) == [smooth, smooth]
+    for bad in ([], [smooth, 0.1]):
+        with pytest.raises(ValueError, match="allowed: None, a Smoothing or a non-empty"):
+            _schedule(bad, 3)
+    with pytest.raises(ValueError, match="stages = 1; allowed: an integer >= 2"):
+        smooth.annealed(1)
+    task = task_for(SHARED)
+    for bad in (0.0, 0.5, True):
+        with pytest.raises(ValueError, match=r"final_phase = .*; allowed: None or seconds > 0"):
+            jm.refine(task, task.sample(2, key=jr.key(0)), optax.adam(0.1), 1, final_phase=bad)
+
+
 def test_nonfinite_gradients_are_skipped_and_counted(x64):
     task = task_for(SHARED)
     params = task.sample(4, key=jr.key(2))
@@ -174,6 +236,10 @@ def test_compare_writes_a_table_and_a_plot_on_equal_budgets(tmp_path):
             "0,1",
             "--top-k",
             "2",
+            "--strategies",
+            "plain,final",
+            "--final-phase",
+            "0.5",
             "--gradient-cost",
             "9",  # so that the 100 simulations left after the search buy exactly 5 steps
             "--out",
@@ -193,12 +259,15 @@ def test_compare_writes_a_table_and_a_plot_on_equal_budgets(tmp_path):
         "summary.json",
     }
     rows = list(csv.DictReader((folder / "compare.csv").open()))
-    assert len(rows) == 4
+    assert len(rows) == 6
     for seed in ("0", "1"):
-        alone, refined = (r for r in rows if r["seed"] == seed)
+        alone, refined, final = (r for r in rows if r["seed"] == seed)
         assert alone["method"] == "search" and refined["method"] == "search+refine"
-        assert int(refined["gradient_steps"]) == 5  # 100 / (2 controllers x (9 + 1))
-        assert int(refined["simulations"]) == int(alone["simulations"]) == 100 + 200
+        assert final["method"] == "search+refine final 0.5s"
+        for row in (refined, final):
+            assert int(row["gradient_steps"]) == 5  # 100 / (2 controllers x (9 + 1))
+            assert int(row["simulations"]) == int(alone["simulations"]) == 100 + 200
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["gradient_cost_simulations"] == 9
+    assert set(summary["strategies"]) == {"plain", "final"}
     assert "| stochastic search |" in (folder / "compare.md").read_text()

@@ -350,7 +350,14 @@ def _timing(task: Task) -> dict:
 
 
 def _local(
-    task: Task, params, *, senses: bool = False, initial_state=None, positions: bool = False
+    task: Task,
+    params,
+    *,
+    senses: bool = False,
+    initial_state=None,
+    positions: bool = False,
+    reverse_mode: bool = False,
+    gradient_from: float | None = None,
 ) -> Trajectory:
     start = task.initial_state if initial_state is None else initial_state
     return simulate_batch(
@@ -361,6 +368,8 @@ def _local(
         initial_state=start,
         record_senses=senses,
         record_positions=positions,
+        reverse_mode=reverse_mode,
+        gradient_from=gradient_from,
         **_timing(task),
     )
 
@@ -371,6 +380,12 @@ def _objective(task: Task, trajectories: Trajectory):
 
 def _fitness(task: Task, params):
     return _objective(task, _local(task, params))
+
+
+def _differentiable_fitness(task: Task, params, gradient_from: float | None = None):
+    """`_fitness` in the layout built for reverse-mode differentiation (before
+    `gradient_from` seconds, held constant)."""
+    return _objective(task, _local(task, params, reverse_mode=True, gradient_from=gradient_from))
 
 
 def _fitness_and_senses(task: Task, params):

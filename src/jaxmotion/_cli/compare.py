@@ -12,22 +12,31 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 
-from .._search.hill_climb import parallel_hill_climb
 from .._search.protocol import AbstractSearcher, SearchResult, drive
 from .._search.refine import Smoothing, gradient_cost, refine
 from .config import SEARCHES, ConfigError, Experiment, search_evaluations
 
+STRATEGIES = ("plain", "anneal", "final")
+
 
 @dataclass(frozen=True)
 class CompareSettings:
-    """How the budget is split: `fraction` of the search's evaluations go to the stochastic
-    search, the rest to `refine` on its best `top_k` controllers with Adam at
-    `learning_rate`, on the problem smoothed by `smoothing`. A gradient step costs
-    `gradient_cost` simulations per controller (measured with `jaxmotion.gradient_cost` when
-    None), plus one for its true evaluation when the problem is smoothed."""
+    """How the budget is split: `fraction` of the search's simulations after its initial
+    set go to the config's searcher, the rest to `refine` on its best `top_k` controllers
+    with Adam at `learning_rate`, by each of `strategies`:
+
+    - `"plain"`: gradients of the problem smoothed by `smoothing`, through the whole motion.
+    - `"anneal"`: the smoothing annealed to none over the steps (`Smoothing.annealed()`).
+    - `"final"`: gradients through the last `final_phase` seconds only (`refine`'s
+        `final_phase`), smoothed by `smoothing`.
+
+    A gradient step costs what `jaxmotion.gradient_cost` measures for its strategy
+    (`gradient_cost`, if given, for all), plus one simulation for its true evaluation, per
+    controller."""
 
     seeds: tuple[int, ...] = (0, 1, 2)
     fraction: float = 0.5
@@ -37,6 +46,8 @@ class CompareSettings:
         default_factory=lambda: Smoothing(regime_width=0.05, friction_velocity=0.1)
     )
     gradient_cost: float | None = None
+    strategies: tuple[str, ...] = ("plain",)
+    final_phase: float = 1.0
 
     def __post_init__(self):
         if not 0 < self.fraction < 1:
@@ -47,6 +58,30 @@ class CompareSettings:
             raise ValueError(f"compare learning_rate = {self.learning_rate!r}; allowed: > 0")
         if not self.seeds:
             raise ValueError("compare seeds: allowed: at least one seed")
+        unknown = [x for x in self.strategies if x not in STRATEGIES]
+        if unknown or not self.strategies or len(set(self.strategies)) < len(self.strategies):
+            raise ValueError(
+                f"compare strategies = {','.join(self.strategies)!r}; allowed: distinct names "
+                f"among {', '.join(STRATEGIES)}"
+            )
+        if not (isinstance(self.final_phase, int | float) and self.final_phase > 0):
+            raise ValueError(f"compare final_phase = {self.final_phase!r}; allowed: seconds > 0")
+
+    def refine_options(self, strategy: str) -> dict:
+        """`refine`'s keyword arguments for a strategy."""
+        if strategy == "anneal":
+            return dict(smoothing=self.smoothing.annealed())
+        if strategy == "final":
+            return dict(smoothing=self.smoothing, final_phase=self.final_phase)
+        return dict(smoothing=self.smoothing)
+
+    def label(self, strategy: str) -> str:
+        """A strategy's method name in the table."""
+        if strategy == "plain":
+            return "search+refine"
+        if strategy == "final":
+            return f"search+refine final {self.final_phase:g}s"
+        return f"search+refine {strategy}"
 
 
 def _curve(history_fitness: np.ndarray, costs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -54,38 +89,57 @@ def _curve(history_fitness: np.ndarray, costs: np.ndarray) -> tuple[np.ndarray, 
     return np.cumsum(costs), np.maximum.accumulate(history_fitness)
 
 
-def compare_one(experiment: Experiment, seed: int, settings: CompareSettings, cost: float):
-    """Both methods for one seed; returns (a's curve, b's curve, a's best, b's best, b's
-    number of gradient steps)."""
+def _top(result: SearchResult, k: int):
+    """The `k` fittest controllers of a search's final state (stacked), from its
+    `population` and `fitness` (any leading axes: serial search's runs and climbers); a
+    searcher whose state has neither gives its best controller alone."""
+    state = result.state
+    population = getattr(state, "population", None)
+    fitness = getattr(state, "fitness", None)
+    if population is None or fitness is None:
+        return jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], result.best)
+    lead = jnp.ndim(fitness)
+    flat = jax.tree_util.tree_map(lambda a: a.reshape((-1, *a.shape[lead:])), population)
+    order = np.argsort(-np.asarray(fitness).reshape(-1), kind="stable")[:k]
+    return jax.tree_util.tree_map(lambda a: a[order], flat)
+
+
+def compare_one(
+    experiment: Experiment, seed: int, settings: CompareSettings, costs: dict[str, float]
+):
+    """Search alone and search + refine by each strategy for one seed; returns the curve
+    and best of the search alone, then per strategy its curve, best and gradient steps."""
     import optax
 
     task = experiment.task
-    s = experiment.search
-    key = jr.key(seed)
-    size, batch, budget = s["size"], s["batch"], s["evaluations"]
-    alone = parallel_hill_climb(task, key=key, evaluations=budget, size=size, batch=batch)
+    budget = search_evaluations(experiment.search)
+    alone, _ = run_searcher(experiment, experiment.search, budget, seed)
     a = _curve(alone.history.fitness, np.ones(len(alone.history)))
 
-    searched = max(1, round(settings.fraction * budget))
-    first = parallel_hill_climb(task, key=key, evaluations=searched, size=size, batch=batch)
-    k = min(settings.top_k, size)
-    start = jax.tree_util.tree_map(lambda x: x[:k], first.state.population)
-    per_step = k * (cost + 1)  # a gradient and a true evaluation per controller and step
-    steps = int((budget - searched) // per_step)
-    _, refined = refine(
-        task,
-        start,
-        optax.adam(settings.learning_rate),
-        steps,
-        smoothing=settings.smoothing,
-    )
-    # The refinement's history holds k true evaluations per step (step 0: the starting
-    # point, already paid for by the search); each later step costs per_step simulations.
-    rows = refined.history.fitness.reshape(steps + 1, k)[1:].max(axis=1)
-    fitness = np.concatenate([first.history.fitness, rows])
-    costs = np.concatenate([np.ones(len(first.history)), np.full(steps, per_step)])
-    b = _curve(fitness, costs)
-    return a, b, float(a[1][-1]), float(b[1][-1]), steps
+    initial = SEARCHES[experiment.search["algorithm"]].initial(experiment.search)
+    share = initial + max(1, round(settings.fraction * (budget - initial)))
+    first, used = run_searcher(experiment, experiment.search, share, seed)
+    start = _top(first, settings.top_k)
+    k = jax.tree_util.tree_leaves(start)[0].shape[0]
+    refined = {}
+    for strategy in settings.strategies:
+        per_step = k * (costs[strategy] + 1)  # a gradient and a true evaluation each
+        steps = int((budget - used) // per_step)
+        _, result = refine(
+            task,
+            start,
+            optax.adam(settings.learning_rate),
+            steps,
+            **settings.refine_options(strategy),
+        )
+        # The refinement's history holds k true evaluations per step (step 0: the
+        # starting point, already paid for by the search); each later step costs per_step.
+        rows = result.history.fitness.reshape(steps + 1, k)[1:].max(axis=1)
+        fitness = np.concatenate([first.history.fitness, rows])
+        spent = np.concatenate([np.ones(len(first.history)), np.full(steps, per_step)])
+        b = _curve(fitness, spent)
+        refined[strategy] = (b, float(b[1][-1]), steps)
+    return a, float(a[1][-1]), refined
 
 
 def run_compare(
@@ -99,40 +153,71 @@ def run_compare(
     `compare.csv` (per seed and method, the best fitness), `compare.md` (the table),
     `compare.png` (best fitness against simulations spent) and `summary.json`."""
     task = experiment.task
-    k = min(settings.top_k, experiment.search["size"])
+    budget = search_evaluations(experiment.search)
+    initial = SEARCHES[experiment.search["algorithm"]].initial(experiment.search)
+    share = initial + max(1, round(settings.fraction * (budget - initial)))
+    budgeted(experiment.search, share)  # refuse a share that does not fit before anything
+    if "final" in settings.strategies and not settings.final_phase <= task.duration:
+        raise ConfigError(
+            f"compare final_phase = {settings.final_phase:g} s; allowed: at most the "
+            f"duration {task.duration:g} s"
+        )
+    k = settings.top_k
     probe = task.sample(k, key=jr.key(12345))  # a batch of the refined size, to time
-    measured = settings.gradient_cost
-    if measured is None:
-        measured = gradient_cost(task, probe, settings.smoothing)
-    cost = math.ceil(measured)
+    measured = {}
+    for strategy in settings.strategies:
+        # Annealing's stages cost at most its first stage, the plain smoothed problem: it
+        # is charged that.
+        timed = "plain" if strategy == "anneal" else strategy
+        if settings.gradient_cost is not None:
+            measured[timed] = settings.gradient_cost
+        elif timed not in measured:
+            options = settings.refine_options(timed)
+            measured[timed] = gradient_cost(
+                task, probe, options["smoothing"], options.get("final_phase")
+            )
+    costs = {s: math.ceil(measured["plain" if s == "anneal" else s]) for s in settings.strategies}
     results = []
     for seed in settings.seeds:
         if progress is not None:
             progress(f"seed {seed}")
-        results.append((seed, *compare_one(experiment, seed, settings, cost)))
+        results.append((seed, *compare_one(experiment, seed, settings, costs)))
 
-    a_best = [r[3] for r in results]
-    b_best = [r[4] for r in results]
+    a_best = [r[2] for r in results]
     lines = ["seed,method,best_fitness,simulations,gradient_steps"]
-    for seed, a, b, fa, fb, steps in results:
+    for seed, a, fa, refined in results:
         lines.append(f"{seed},search,{fa!r},{int(a[0][-1])},0")
-        lines.append(f"{seed},search+refine,{fb!r},{int(b[0][-1])},{steps}")
-    diffs = [fb - fa for fa, fb in zip(a_best, b_best, strict=True)]
+        for strategy, (b, fb, steps) in refined.items():
+            lines.append(f"{seed},{settings.label(strategy)},{fb!r},{int(b[0][-1])},{steps}")
     table = [
-        f"{experiment.name}: best fitness over seeds {list(settings.seeds)} "
-        f"(equal budgets; a gradient step of {k} controllers counts as {k} x "
-        f"({cost} + 1) simulations)",
+        f"{experiment.name}: best fitness over seeds {list(settings.seeds)} (equal budgets; "
+        f"search on {settings.fraction:.0%} of the simulations after its initial set, then "
+        f"refine its top {k}; a gradient step counts as {k} x (cost + 1) simulations, with "
+        + ", ".join(f"{s} cost {c}" for s, c in costs.items())
+        + ")",
         "",
         "| method | median | min | max |",
         "|---|---|---|---|",
         _row("stochastic search", a_best),
-        _row(f"search ({settings.fraction:.0%}) + refine top {k}", b_best),
-        _row("difference (b - a)", diffs),
     ]
+    per_strategy = {}
+    for strategy in settings.strategies:
+        best = [r[3][strategy][1] for r in results]
+        diffs = [fb - fa for fa, fb in zip(a_best, best, strict=True)]
+        table.append(_row(settings.label(strategy), best))
+        table.append(_row(f"difference ({strategy} - search)", diffs))
+        per_strategy[strategy] = {
+            "best": best,
+            "gradient_steps": [r[3][strategy][2] for r in results],
+            "gradient_cost_simulations": costs[strategy],
+            "median_difference": statistics.median(diffs),
+            "wins": sum(d > 0 for d in diffs),
+        }
+    first = settings.strategies[0]
     summary = {
         "name": experiment.name,
         "seeds": list(settings.seeds),
-        "budget": experiment.search["evaluations"],
+        "budget": budget,
         "fraction": settings.fraction,
         "top_k": k,
         "learning_rate": settings.learning_rate,
@@ -140,16 +225,18 @@ def run_compare(
             "regime_width": settings.smoothing.regime_width,
             "friction_velocity": settings.smoothing.friction_velocity,
         },
-        "gradient_cost_simulations": cost,
+        "final_phase": settings.final_phase,
         "search_best": a_best,
-        "refine_best": b_best,
-        "median_difference": statistics.median(diffs),
-        "refine_wins": sum(d > 0 for d in diffs),
+        "strategies": per_strategy,
+        # The first strategy's figures under the names earlier versions wrote.
+        "gradient_cost_simulations": costs[first],
+        "refine_best": per_strategy[first]["best"],
+        "median_difference": per_strategy[first]["median_difference"],
+        "refine_wins": per_strategy[first]["wins"],
     }
-    curves = {
-        "stochastic search": [r[1] for r in results],
-        "search + refine": [r[2] for r in results],
-    }
+    curves = {"stochastic search": [r[1] for r in results]}
+    for strategy in settings.strategies:
+        curves[settings.label(strategy)] = [r[3][strategy][0] for r in results]
     title = f"{experiment.name}: stochastic search vs search + gradients"
     return _write(experiment, directory, lines, table, curves, title, summary)
 

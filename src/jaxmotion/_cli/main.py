@@ -148,6 +148,20 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         help="simulations one gradient step costs per controller (default: measured)",
     )
+    compare.add_argument(
+        "--strategies",
+        default="plain",
+        help="refinement strategies, comma-separated among plain (smoothed gradients of the "
+        "whole motion), anneal (smoothing annealed to none), final (gradients through the "
+        "last --final-phase seconds only); default plain",
+    )
+    compare.add_argument(
+        "--final-phase",
+        type=float,
+        default=1.0,
+        metavar="SECONDS",
+        help="the final strategy's phase, s (default 1.0)",
+    )
     compare.add_argument("--out", metavar="DIR", help="results directory")
     compare.add_argument("--evaluations", type=int, help="override [search] evaluations")
     compare.add_argument("--batch", type=int, help="override [search] batch")
@@ -711,11 +725,6 @@ def _compare(args) -> int:
         )
     if args.against is not None:
         return _compare_searchers(args, experiment, seeds)
-    if experiment.search["algorithm"] != "parallel_hill_climb":
-        raise ConfigError(
-            f"{args.config}: compare runs parallel_hill_climb with and without refinement; "
-            f"this config's [search] algorithm is {experiment.search['algorithm']!r}"
-        )
     try:
         settings = CompareSettings(
             seeds=seeds,
@@ -723,6 +732,8 @@ def _compare(args) -> int:
             top_k=args.top_k,
             learning_rate=args.learning_rate,
             gradient_cost=args.gradient_cost,
+            strategies=tuple(x.strip() for x in args.strategies.split(",")),
+            final_phase=args.final_phase,
         )
     except ValueError as e:
         raise ConfigError(str(e)) from None

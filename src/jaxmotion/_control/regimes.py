@@ -140,13 +140,7 @@ class Regimes(AbstractController):
         del t
         if self.blend > 0:
             return self._blended(jnp.mod(state.discrete, self.t_per), plan)
-        # A chain of selects rather than an index: under vmap an index per controller would
-        # become a gather, which is slow on CPU; selects stay elementwise.
-        index = state.discrete
-        table = plan[0]
-        for c in range(1, self.num_regimes):
-            table = jnp.where(index == c, plan[c], table)
-        return table
+        return _pick(plan, state.discrete)
 
     def _blended(self, phase, plan):
         # Regime c weighs exp(-(d_c - d_min) / blend), d_c = |phase - times[c]|: the nearest
@@ -158,10 +152,69 @@ class Regimes(AbstractController):
             nearest = jnp.minimum(nearest, d)
         weights = [jnp.exp(-(d - nearest) / self.blend) for d in dists]
         total = sum(weights[1:], weights[0])
-        table = sum(
-            (w * p for w, p in zip(weights[1:], plan[1:], strict=True)), weights[0] * plan[0]
-        )
-        return table / total
+        return _mix(plan, jnp.stack(weights)) / total
+
+
+# The regime tables are read at every tick, so the backward pass of a gradient adds each
+# tick's cotangent of the table in use into the cotangent of all the tables. JAX's own
+# transposes of the reads below turn every regime's slice into a padded copy of the whole
+# stack, whose arithmetic XLA repeats for each regime (on the cube the larger part of a
+# backward pass); the written ones form the stack's cotangent in one broadcast product.
+
+
+@jax.custom_vjp
+def _pick(plan, index):
+    """`plan[index]` (plan `(C, n, n, *batch)`, index `batch`), as a chain of selects:
+    under vmap an index per controller would become a gather, which is slow on CPU;
+    selects stay elementwise."""
+    table = plan[0]
+    for c in range(1, plan.shape[0]):
+        table = jnp.where(index == c, plan[c], table)
+    return table
+
+
+def _pick_fwd(plan, index):
+    # `slots` carries only the number of regimes (a residual must be an array).
+    return _pick(plan, index), (index, jnp.zeros(plan.shape[0], dtype=plan.dtype))
+
+
+def _pick_bwd(residuals, cotangent):
+    index, slots = residuals
+    regimes = jnp.arange(slots.shape[0]).reshape(slots.shape + (1,) * index.ndim)
+    return _along((regimes == index).astype(cotangent.dtype), cotangent), None
+
+
+_pick.defvjp(_pick_fwd, _pick_bwd)
+
+
+@jax.custom_vjp
+def _mix(plan, weights):
+    """`sum_c weights[c] plan[c]` (weights `(C, *batch)`, plan `(C, n, n, *batch)`)."""
+    return sum((w * p for w, p in zip(weights[1:], plan[1:], strict=True)), weights[0] * plan[0])
+
+
+def _mix_fwd(plan, weights):
+    return _mix(plan, weights), (plan, weights)
+
+
+def _mix_bwd(residuals, cotangent):
+    plan, weights = residuals
+    product = plan * cotangent[None]  # (C, n, n, *batch)
+    # Summed over the two table axes as explicit adds: XLA's reductions over middle axes
+    # of the batch-last layout are slow.
+    rows = sum(product[:, :, k] for k in range(product.shape[2]))
+    return _along(weights, cotangent), sum(rows[:, k] for k in range(rows.shape[1]))
+
+
+_mix.defvjp(_mix_fwd, _mix_bwd)
+
+
+def _along(weights, table):
+    """`weights[c] * table` stacked over c: `(C, *table.shape)`. The weights `(C, *batch)`
+    and the table `(n, n, *batch)` share any trailing batch axes (the batch-last layout)."""
+    batch = weights.shape[1:]
+    inner = table.ndim - len(batch)
+    return weights.reshape(weights.shape[:1] + (1,) * inner + batch) * table[None]
 
 
 def _check_regimes(times, reflexes, coefficients, t_per) -> None:

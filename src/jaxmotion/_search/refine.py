@@ -1,6 +1,6 @@
 """Gradient refinement of controllers through the simulation, with optax."""
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import equinox as eqx
@@ -12,7 +12,8 @@ from jaxtyping import Array, Float
 
 from .._control.base import AbstractController
 from .._sim import execution
-from .._task import Task, _fitness
+from .._sim.simulate import time_grid
+from .._task import Task, _differentiable_fitness, _timing
 from .history import History
 
 
@@ -56,6 +57,22 @@ class Smoothing(eqx.Module):
         """The controllers with their switches blended."""
         return params if self.regime_width == 0 else params.smoothed(self.regime_width)
 
+    def annealed(self, stages: int = 4) -> tuple["Smoothing", ...]:
+        """A schedule for `refine`: `stages` smoothings from this one down to none, in equal
+        steps (the friction's speed down to the world's own, which `task` never goes
+        below). Each stage compiles its own gradient, so a few stages, not one per step."""
+        if isinstance(stages, bool) or not isinstance(stages, int) or stages < 2:
+            raise ValueError(f"Smoothing.annealed stages = {stages!r}; allowed: an integer >= 2")
+        last = stages - 1
+        v = self.friction_velocity
+        return tuple(
+            Smoothing(
+                regime_width=self.regime_width * (last - k) / last,
+                friction_velocity=None if v is None or k == last else v * (last - k) / last,
+            )
+            for k in range(stages)
+        )
+
 
 @dataclass(frozen=True)
 class RefineHistory(History):
@@ -77,10 +94,12 @@ class RefineResult:
     history: RefineHistory
 
 
-def _local_value_and_grad(task: Task, trainable, frozen, smoothing: Smoothing):
+def _local_value_and_grad(task: Task, trainable, frozen, smoothing: Smoothing, gradient_from):
     def total(p):
         params = eqx.combine(p, frozen)
-        fitness = _fitness(smoothing.task(task), smoothing.controllers(params))
+        fitness = _differentiable_fitness(
+            smoothing.task(task), smoothing.controllers(params), gradient_from
+        )
         # Each controller's fitness depends on its own parameters only, so the gradient of the
         # sum is every controller's own gradient. A blown-up run (-inf) contributes nothing
         # here and gets a non-finite gradient of its own, which `refine` skips.
@@ -91,19 +110,38 @@ def _local_value_and_grad(task: Task, trainable, frozen, smoothing: Smoothing):
 
 
 def _local_gradients(args, params):
-    task, spec, smoothing = args
+    task, spec, smoothing, gradient_from = args
     trainable, frozen = eqx.partition(params, spec)
-    return _local_value_and_grad(task, trainable, frozen, smoothing)
+    return _local_value_and_grad(task, trainable, frozen, smoothing, gradient_from)
 
 
-def _value_and_grad(task: Task, params, spec, smoothing: Smoothing):
+def _value_and_grad(task: Task, params, spec, smoothing: Smoothing, gradient_from=None):
     """Smoothed fitness and its gradient for every controller (leading batch axis), laid
-    out as `Task.evaluate` lays out one device's share (whole lane groups, at least 16), so
-    that the forward pass runs the same widths as evaluate's.
+    out as `Task.evaluate` lays out a batch (split over the devices, each share whole lane
+    groups), through the simulation's reverse-mode layout (`simulate_batch(...,
+    reverse_mode=True)`: a scan of checkpointed save intervals); `gradient_from` (s) holds
+    the motion before it constant."""
+    return execution.run(_local_gradients, (task, spec, smoothing, gradient_from), params)
 
-    One device: reverse-mode through diffrax inside `shard_map` fails in equinox's closure
-    conversion (it sees the per-device shapes), so gradients are not yet sharded."""
-    return execution.run(_local_gradients, (task, spec, smoothing), params, shard=False)
+
+def _gradient_from(task: Task, final_phase) -> float | None:
+    """The time the gradient starts from for `final_phase` seconds at the end (rounded to
+    the task's save intervals), `None` for the whole motion."""
+    if final_phase is None:
+        return None
+    duration = float(task.duration)
+    if (
+        isinstance(final_phase, bool)
+        or not isinstance(final_phase, int | float)
+        or not 0 < final_phase <= duration
+    ):
+        raise ValueError(
+            f"refine final_phase = {final_phase!r}; allowed: None or seconds > 0 and <= the "
+            f"task's duration {duration:g}"
+        )
+    save_dt = time_grid(task.duration, **_timing(task)).save_dt
+    held = max(0, round((duration - final_phase) / save_dt))
+    return None if held == 0 else held * save_dt
 
 
 @eqx.filter_jit
@@ -144,15 +182,21 @@ def _select(mask, new, old):
 
 
 def fitness_and_gradient(
-    task: Task, params: AbstractController, *, smoothing: Smoothing | None = None
+    task: Task,
+    params: AbstractController,
+    *,
+    smoothing: Smoothing | None = None,
+    final_phase: float | None = None,
 ) -> tuple[Float[Array, " batch"], AbstractController]:
     """The fitness of a batch of controllers on the problem smoothed by `smoothing`, and its
     gradient with respect to each controller's trainable leaves (the others are `None`),
-    through the whole fixed-step simulation. A blown-up run has fitness `-inf` and a
-    non-finite gradient."""
+    through the whole fixed-step simulation, or with `final_phase` (seconds) only through
+    its last part: the motion before it is held where it is (see `refine`). A blown-up run
+    has fitness `-inf` and a non-finite gradient."""
     smoothing = Smoothing() if smoothing is None else smoothing
+    gradient_from = _gradient_from(task, final_phase)
     params, spec = _prepared(task, params)
-    return _value_and_grad(task, params, spec, smoothing)
+    return _value_and_grad(task, params, spec, smoothing, gradient_from)
 
 
 def _prepared(task: Task, params):
@@ -168,7 +212,8 @@ def refine(
     optimizer: optax.GradientTransformation,
     steps: int,
     *,
-    smoothing: Smoothing | None = None,
+    smoothing: Smoothing | Sequence[Smoothing] | None = None,
+    final_phase: float | None = None,
     callback: Callable[[int, AbstractController, np.ndarray], None] | None = None,
 ) -> tuple[AbstractController, RefineResult]:
     """Gradient ascent on the continuous parameters of a batch of controllers.
@@ -193,7 +238,15 @@ def refine(
     - `params`: the starting controllers, stacked along a leading axis.
     - `optimizer`: e.g. `optax.adam(1e-2)`.
     - `steps`: gradient steps.
-    - `smoothing`: see `Smoothing`; the default (`None`) is no smoothing.
+    - `smoothing`: see `Smoothing`; the default (`None`) is no smoothing. A sequence of
+        them is a schedule: the steps are shared among them in order, as evenly as
+        possible (`Smoothing(...).annealed()` anneals to none: early steps see a smooth
+        landscape, the last ones the problem as posed).
+    - `final_phase`: if given (seconds), gradients flow only through the last
+        `final_phase` seconds of each motion (rounded to save intervals): what happens
+        before is held as it is (truncated backpropagation: cheaper, and free of the
+        chaotic long-horizon contact a whole-motion gradient goes through; for example to
+        land a somersault upright). The fitness is still the whole motion's.
     - `callback`: called after every step with the step number, the updated controllers
         and the true fitness of the controllers that step started from.
 
@@ -201,16 +254,15 @@ def refine(
     the starting point included) and a `RefineResult`. The history holds the true fitness of
     all controllers at every step, `steps + 1` rows of the batch (step 0 is the start).
     """
-    smoothing = Smoothing() if smoothing is None else smoothing
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
-        raise ValueError(f"refine steps = {steps!r}; allowed: an integer >= 0")
+    schedule = _schedule(smoothing, steps)
+    gradient_from = _gradient_from(task, final_phase)
     params, spec = _prepared(task, params)
     opt_state = jax.vmap(optimizer.init)(eqx.filter(params, spec))
     best = params
     best_fitness = jnp.full(execution.batch_size(params), -jnp.inf)
     parts, skipped = [], 0
     for k in range(steps):
-        _, grads = _value_and_grad(task, params, spec, smoothing)
+        _, grads = _value_and_grad(task, params, spec, schedule[k], gradient_from)
         # The true fitness from `evaluate` itself, even unsmoothed: the gradient program
         # computes the same function, but XLA fuses its forward pass differently (it keeps
         # what the backward pass needs), so its values can differ in the last bits, and the
@@ -234,7 +286,28 @@ def refine(
     )
 
 
-def gradient_cost(task: Task, params: AbstractController, smoothing: Smoothing | None = None):
+def _schedule(smoothing, steps: int) -> list[Smoothing]:
+    """The smoothing of each of `steps` steps."""
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise ValueError(f"refine steps = {steps!r}; allowed: an integer >= 0")
+    if smoothing is None or isinstance(smoothing, Smoothing):
+        return [Smoothing() if smoothing is None else smoothing] * steps
+    stages = list(smoothing)
+    if not stages or not all(isinstance(s, Smoothing) for s in stages):
+        raise ValueError(
+            f"refine smoothing = {smoothing!r}; allowed: None, a Smoothing or a non-empty "
+            f"sequence of them (a schedule)"
+        )
+    # Stage i covers steps [i * steps // n, (i + 1) * steps // n).
+    return [stages[k * len(stages) // steps] for k in range(steps)] if steps else []
+
+
+def gradient_cost(
+    task: Task,
+    params: AbstractController,
+    smoothing: Smoothing | None = None,
+    final_phase: float | None = None,
+):
     """How many simulations one gradient step costs, measured: the median wall time of the
     forward-and-backward pass over a batch divided by that of `task.evaluate` on it (both
     compiled first, three calls each). `refine` also evaluates the true fitness each step unless the
@@ -242,6 +315,7 @@ def gradient_cost(task: Task, params: AbstractController, smoothing: Smoothing |
     import time
 
     smoothing = Smoothing() if smoothing is None else smoothing
+    gradient_from = _gradient_from(task, final_phase)
     params, spec = _prepared(task, params)
 
     def timed(fn, repeats=3):
@@ -253,7 +327,7 @@ def gradient_cost(task: Task, params: AbstractController, smoothing: Smoothing |
             runs.append(time.perf_counter() - start)
         return sorted(runs)[repeats // 2]  # the median: one slow call must not decide it
 
-    grad_s = timed(lambda: _value_and_grad(task, params, spec, smoothing))
+    grad_s = timed(lambda: _value_and_grad(task, params, spec, smoothing, gradient_from))
     eval_s = timed(lambda: task.evaluate(params))
     return max(1.0, grad_s / eval_s)
 

@@ -218,6 +218,58 @@ def _integrate(
     return sol.ts[0], samples, final, sol.result == dfx.RESULTS.successful
 
 
+def _integrate_segments(system: ClosedLoop, y0, t0, grid: TimeGrid, held: int = 0):
+    """The fixed-step path for reverse-mode differentiation: `_integrate` with the symplectic
+    solver, written as a `lax.scan` over the save intervals whose body (one interval: the
+    solver's very step, then the sample) is checkpointed.
+
+    The forward pass of a gradient then keeps one state per save interval and nothing of
+    the steps inside it, and the backward pass recomputes one interval at a time, keeping
+    that interval's per-step residuals only while it is transposed: one forward pass, one
+    recomputation and one transposition in all, with memory bounded by the interval count
+    times the state plus one interval's residuals. (diffrax's `RecursiveCheckpointAdjoint`
+    computes the same gradient through its checkpointed while loop, whose bookkeeping grew
+    with the number of checkpoints: at T = 5 s a backward pass cost hundreds of forward
+    passes.)
+
+    The first `held` save intervals are held constant for differentiation (their samples
+    and the state they end in are `stop_gradient`ed, and they are integrated outside the
+    differentiated loop): the gradient of what follows, from where the motion really is.
+
+    Same returns as `_integrate` (the solver cannot fail here, so `ok` is `True`); the same
+    states up to rounding (XLA fuses the differentiated program differently).
+    """
+    ticks = _save_ticks(t0, grid)
+    solver = solver_for("symplectic", grid, rtol=0.0, atol=0.0, max_steps=0)
+    term = ClosedLoopTerm()
+
+    def interval(y, times):
+        start, end = times
+        y1 = solver.step(term, start, end, y, system, None, False)[0]
+        return y1, system.sample(end, y1)
+
+    def scan(y, first, last):
+        return jax.lax.scan(
+            jax.checkpoint(interval, prevent_cse=False),
+            y,
+            (ticks[first:last], ticks[first + 1 : last + 1]),
+        )
+
+    parts = [jax.tree_util.tree_map(lambda a: a[None], system.sample(ticks[0], y0))]
+    y = y0
+    if held:
+        y, early = jax.lax.stop_gradient(scan(y, 0, held))
+        parts.append(early)
+    final, late = scan(y, held, grid.num_saves)
+    parts.append(late)
+    samples = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)
+    if held:
+        samples = jax.tree_util.tree_map(
+            lambda a: a.at[0].set(jax.lax.stop_gradient(a[0])), samples
+        )
+    return jnp.asarray(ticks), samples, final, jnp.asarray(True)
+
+
 def _save_ticks(t0, grid: TimeGrid):
     """The tick times of the samples from `t0`: `(n0 + k save_every) control_dt`, `n0 =
     round(t0 / control_dt)`, in the time's dtype.
@@ -412,6 +464,8 @@ def simulate_batch(
     rtol: float | None = None,
     atol: float | None = None,
     max_steps: int = 100_000,
+    reverse_mode: bool = False,
+    gradient_from: float | None = None,
 ) -> Trajectory:
     """`jax.vmap(simulate)` over `controllers` (leading batch axis), computed in the
     batch-last layout: the same per-step functions, called on whole batches with the batch
@@ -423,6 +477,11 @@ def simulate_batch(
     (a leading batch axis). `controllers=None` simulates `batch` unactuated bodies.
     `record_senses` also saves the senses each controller perceives (`Trajectory.senses`),
     `record_positions` each body's positions state (`Trajectory.positions`).
+    `reverse_mode=True` (the symplectic solver only) integrates in the layout built for
+    `jax.grad` (`_integrate_segments`): the same states up to rounding, a backward pass of a
+    few forward passes' cost. With it, `gradient_from` (seconds from the start, a whole
+    number of save intervals) holds everything before that time constant for
+    differentiation: gradients see only what the controllers do from then on.
     """
     grid = time_grid(duration, dt, save_dt, control_dt)
     _check_solver(solver)
@@ -444,9 +503,15 @@ def simulate_batch(
     )
     t0, y0 = _batched_start(system, body, initial_state, batch)
     system = system.with_start(y0[1])
-    ts, samples, final, ok = _integrate(
-        system, y0, t0, grid, solver, rtol=rtol, atol=atol, max_steps=max_steps
-    )
+    if reverse_mode:
+        if solver != "symplectic":
+            raise ValueError(f"reverse_mode=True needs solver='symplectic'; got {solver!r}")
+        held = 0 if gradient_from is None else _held_saves(gradient_from, grid)
+        ts, samples, final, ok = _integrate_segments(system, y0, t0, grid, held)
+    else:
+        ts, samples, final, ok = _integrate(
+            system, y0, t0, grid, solver, rtol=rtol, atol=atol, max_steps=max_steps
+        )
     # (time, ..., batch) -> (batch, time, ...); final (..., batch) -> (batch, ...)
     obs, senses, positions = _to_first(samples)
     body_state, control = _to_first((final[0], system.restore(final[1])))
@@ -454,6 +519,23 @@ def simulate_batch(
     ts = jnp.broadcast_to(ts, (batch, ts.shape[0]))
     final = SimulationState(ts[:, -1], body_state, control)
     return _trajectory(ts, (obs, senses, positions), final, finite)
+
+
+def _held_saves(gradient_from, grid: TimeGrid) -> int:
+    """The save intervals before `gradient_from` seconds (a whole number of them, fewer than
+    all)."""
+    if not (isinstance(gradient_from, int | float) and 0 <= gradient_from < grid.duration):
+        raise ValueError(
+            f"gradient_from = {gradient_from!r}; allowed: seconds >= 0 and < the duration "
+            f"{grid.duration:g}"
+        )
+    held = round(gradient_from / grid.save_dt)
+    if abs(held * grid.save_dt - gradient_from) > _WHOLE * max(grid.duration, grid.save_dt):
+        raise ValueError(
+            f"gradient_from = {gradient_from!r} is not a whole number of save intervals "
+            f"({grid.save_dt:g} s); allowed: a multiple of save_dt"
+        )
+    return int(held)
 
 
 def _per_batch_finite(tree):
