@@ -58,6 +58,31 @@ def test_the_best_is_chosen_by_the_lower_of_its_two_fitnesses():
     assert math.isclose(rows[0][1], reference, rel_tol=GEOMETRY_TOLERANCE, abs_tol=1e-7)
 
 
+def test_the_fittest_of_any_searchers_final_set():
+    """Serial search keeps climbers per run: the fittest are chosen over all of them, and
+    an accurate pick reads them as it reads hill climbing's set; a searcher without a final
+    set (evosax: a distribution) offers its best alone."""
+    import dataclasses
+
+    task = _task()
+    searcher = jm.SEARCHERS["serial_search"](climbers=3, reseed_every=200, enrich=0, seeds=2)
+    result = jm.drive(searcher, task, key=jr.key(1), steps=2)
+    fitness = np.asarray(result.state.fitness)
+    assert fitness.shape == (2, 3)
+    chosen, values = jm.fittest(result, 4)
+    np.testing.assert_array_equal(values, np.sort(fitness.reshape(-1))[::-1][:4])
+    np.testing.assert_array_equal(np.asarray(task.evaluate(chosen)), values)
+    assert values[0] == result.best_fitness
+    picked, measured = pick_accurate(task, result, 2)
+    assert measured["candidates"] == 2
+    assert picked.best_fitness == values[measured["chosen_rank"]]
+    bare = dataclasses.replace(result, state=None)
+    alone, value = jm.fittest(bare, 4)
+    assert value.tolist() == [result.best_fitness]
+    for a, b in zip(jax.tree.leaves(alone), jax.tree.leaves(result.best), strict=True):
+        np.testing.assert_array_equal(np.asarray(a)[0], np.asarray(b))
+
+
 def test_the_config_key():
     raw = {
         "simulation": {"duration": 1.0},
@@ -65,6 +90,10 @@ def test_the_config_key():
         "search": {"accurate_candidates": 10},
     }
     assert parse_config(raw).search["accurate_candidates"] == 10
+    for algorithm in ("serial_search", "evolve"):
+        raw["search"]["algorithm"] = algorithm
+        assert parse_config(raw).search["accurate_candidates"] == 10
+    del raw["search"]["algorithm"]
     raw["search"]["accurate_candidates"] = -1
     with pytest.raises(
         ConfigError, match=r"\[search\] accurate_candidates = -1; allowed: an integer >= 0"

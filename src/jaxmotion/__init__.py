@@ -60,6 +60,7 @@ from ._search.history import History as History
 from ._search.protocol import SEARCHERS as SEARCHERS
 from ._search.protocol import AbstractSearcher as AbstractSearcher
 from ._search.protocol import drive as drive
+from ._search.protocol import fittest as fittest
 from ._search.protocol import register as register_searcher
 from ._search.refine import RefineHistory as RefineHistory
 from ._search.refine import RefineResult as RefineResult
@@ -159,6 +160,7 @@ __all__ = [
     "export",
     "figures",
     "fitness_and_gradient",
+    "fittest",
     "floor_force",
     "gradient_cost",
     "lattices",

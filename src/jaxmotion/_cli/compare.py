@@ -12,11 +12,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 
-from .._search.protocol import AbstractSearcher, SearchResult, drive
+from .._search.protocol import AbstractSearcher, SearchResult, drive, fittest
 from .._search.refine import Smoothing, gradient_cost, refine
 from .config import SEARCHES, ConfigError, Experiment, search_evaluations
 
@@ -89,21 +88,6 @@ def _curve(history_fitness: np.ndarray, costs: np.ndarray) -> tuple[np.ndarray, 
     return np.cumsum(costs), np.maximum.accumulate(history_fitness)
 
 
-def _top(result: SearchResult, k: int):
-    """The `k` fittest controllers of a search's final state (stacked), from its
-    `population` and `fitness` (any leading axes: serial search's runs and climbers); a
-    searcher whose state has neither gives its best controller alone."""
-    state = result.state
-    population = getattr(state, "population", None)
-    fitness = getattr(state, "fitness", None)
-    if population is None or fitness is None:
-        return jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], result.best)
-    lead = jnp.ndim(fitness)
-    flat = jax.tree_util.tree_map(lambda a: a.reshape((-1, *a.shape[lead:])), population)
-    order = np.argsort(-np.asarray(fitness).reshape(-1), kind="stable")[:k]
-    return jax.tree_util.tree_map(lambda a: a[order], flat)
-
-
 def compare_one(
     experiment: Experiment, seed: int, settings: CompareSettings, costs: dict[str, float]
 ):
@@ -119,7 +103,7 @@ def compare_one(
     initial = SEARCHES[experiment.search["algorithm"]].initial(experiment.search)
     share = initial + max(1, round(settings.fraction * (budget - initial)))
     first, used = run_searcher(experiment, experiment.search, share, seed)
-    start = _top(first, settings.top_k)
+    start, _ = fittest(first, settings.top_k)
     k = jax.tree_util.tree_leaves(start)[0].shape[0]
     refined = {}
     for strategy in settings.strategies:

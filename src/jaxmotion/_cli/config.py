@@ -421,6 +421,7 @@ SERIAL_SEARCH = {
         lambda v: 1 <= v <= MAX_BATCH,
         f">= 1, at most {MAX_BATCH} (independent runs batched together; best kept)",
     ),
+    "accurate_candidates": SEARCH["accurate_candidates"],
 }
 
 EVOLVE = {
@@ -443,6 +444,7 @@ EVOLVE = {
         lambda v: 1 <= v <= MAX_SAMPLES,
         f">= 1, at most {MAX_SAMPLES} (each offspring gets 1..mutations)",
     ),
+    "accurate_candidates": SEARCH["accurate_candidates"],
 }
 
 EVOSAX = {
@@ -475,6 +477,7 @@ EVOSAX = {
     "learning_rate": Key(
         "number", 0.05, _positive, "> 0 (Adam's, for Open_ES, SNES, xNES, PGPE, SimpleES)"
     ),
+    "accurate_candidates": SEARCH["accurate_candidates"],
 }
 
 

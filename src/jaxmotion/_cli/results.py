@@ -28,7 +28,7 @@ from .._control.sequence import Sequence as Composite
 from .._control.spring_net import SpringNet
 from .._control.time_bsr import TimeBSR
 from .._search.history import History
-from .._search.protocol import SEARCHERS, SearchResult, drive
+from .._search.protocol import SEARCHERS, SearchResult, drive, fittest
 from .._sim.trajectory import Trajectory, concatenate_trajectories
 from .._task import Task
 from .checkpoint import SUFFIX, Progress, find_checkpoint, load_checkpoint, save_checkpoint
@@ -328,38 +328,49 @@ def accurate_fitness(task: Task, controller: AbstractController) -> float:
     """The fitness of one controller's motion replayed accurately (`ACCURATE`: float64,
     Dopri5 at rtol 1e-8, atol 1e-10), from the task's own start; `-inf` if it blows up."""
     with jax.enable_x64(True):
-        task64, controller64 = _float64(task), _float64(controller)
-        trajectory = task64.simulate(controller64, **ACCURATE)
-        fitness = float(task64.objective(trajectory))
+        return _accurate(_float64(task), controller)
+
+
+def _accurate(task64: Task, controller: AbstractController) -> float:
+    """`accurate_fitness` of a task already in float64 (inside `jax.enable_x64`)."""
+    trajectory = task64.simulate(_float64(controller), **ACCURATE)
+    fitness = float(task64.objective(trajectory))
     return fitness if math.isfinite(fitness) and bool(trajectory.finite) else -math.inf
 
 
 def pick_accurate(task: Task, result: SearchResult, k: int) -> tuple[SearchResult, dict]:
-    """Choose the best controller among the `k` fittest of the search's final set by
-    their accurate replay (`accurate_fitness`): the one whose lower fitness of the two (the
-    search's, the accurate replay's) is highest, so that the motion an animator re-simulates
-    with an accurate integrator is the motion the search found (a fixed step can reward an
-    artefact of itself). Returns the result with that controller as its best (its fitness
-    the search's) and what was measured."""
-    population, fitness = result.state.population, np.asarray(result.state.fitness)
-    order = [int(i) for i in np.argsort(-fitness, kind="stable") if np.isfinite(fitness[i])]
-    rows = []
-    for i in order[:k]:
-        one = jax.tree_util.tree_map(lambda a, i=i: a[i], population)
-        rows.append((i, float(fitness[i]), accurate_fitness(task, one)))
-    if not rows:
+    """Choose the best controller among the `k` fittest of the search's final set
+    (`jaxmotion.fittest`: hill climbing's set, serial search's climbers of every run,
+    evolution's population; evosax's best alone) by their accurate replay
+    (`accurate_fitness`): the one whose lower fitness of the two (the search's, the
+    accurate replay's) is highest, so that the motion an animator re-simulates with an
+    accurate integrator is the motion the search found (a fixed step can reward an artefact
+    of itself). Returns the result with that controller as its best (its fitness the
+    search's) and what was measured."""
+    candidates, fitness = fittest(result, k)
+    if not len(fitness):
         return result, {"candidates": 0}
+    with jax.enable_x64(True):
+        task64 = _float64(task)  # once: the conversion is not free
+        rows = [
+            (i, float(fitness[i]), _accurate(task64, _row(candidates, i)))
+            for i in range(len(fitness))
+        ]
     chosen = max(rows, key=lambda r: min(r[1], r[2]))
-    best = jax.tree_util.tree_map(lambda a: a[chosen[0]], population)
     measured = {
         "candidates": len(rows),
-        "chosen_rank": [r[0] for r in rows].index(chosen[0]),
+        "chosen_rank": chosen[0],
         "fitness": chosen[1],
         "accurate_fitness": _json_number(chosen[2]),
         "search_best_fitness": _json_number(result.best_fitness),
         "search_best_accurate_fitness": _json_number(rows[0][2]),
     }
+    best = _row(candidates, chosen[0])
     return dataclasses.replace(result, best=best, best_fitness=chosen[1]), measured
+
+
+def _row(stacked, i: int):
+    return jax.tree_util.tree_map(lambda a: a[i], stacked)
 
 
 _PARTIAL = re.compile(r"^\..+\.pid(\d+)\.[^.]+\.partial$")

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
@@ -50,6 +52,25 @@ class SearchResult:
     best_fitness: float
     history: History
     state: eqx.Module
+
+
+def fittest(result: SearchResult, k: int) -> tuple[AbstractController, np.ndarray]:
+    """The `k` fittest controllers of a search's final set (stacked, best first) and their
+    fitness, from its state's `population` and `fitness` (any leading axes: serial search's
+    runs and climbers); controllers whose fitness is not finite are left out. A searcher
+    whose state keeps no such set (evosax's: a distribution) gives its best alone."""
+    state = result.state
+    population = getattr(state, "population", None)
+    fitness = getattr(state, "fitness", None)
+    if population is None or fitness is None:
+        best = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], result.best)
+        return best, np.asarray([result.best_fitness])
+    lead = jnp.ndim(fitness)
+    flat = np.asarray(fitness).reshape(-1)
+    order = [int(i) for i in np.argsort(-flat, kind="stable") if np.isfinite(flat[i])][:k]
+    index = np.asarray(order, dtype=int)
+    chosen = jax.tree_util.tree_map(lambda a: a.reshape((-1, *a.shape[lead:]))[index], population)
+    return chosen, flat[index]
 
 
 class AbstractSearcher(eqx.Module):
