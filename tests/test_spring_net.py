@@ -253,6 +253,11 @@ def test_hop_and_roll_checks():
     assert not jm.checks.hop(roller, body_length=1.0).passed
     assert not jm.checks.hop(hopper, body_length=1.5).passed  # 1.67 body lengths
     assert not jm.checks.roll(roller, body_length=1.0, min_turns=1.5).passed  # 1.2 turns
+    # Flights while turning over 1.2 times: a tumble, a roll and not a hop.
+    tumbler = synthetic(com, rolling, hops)
+    assert jm.checks.roll(tumbler, body_length=1.0).passed
+    assert not jm.checks.hop(tumbler, body_length=1.0).passed
+    assert jm.checks.hop(tumbler, body_length=1.0, max_turns=1.5).passed
     both = jm.checks.hop_or_roll(hopper, body_length=1.0)
     assert both.passed and both.figures["hop"] == 1.0 and both.figures["roll"] == 0.0
     still = synthetic(np.zeros((t, 3)), upright, hops)

@@ -609,21 +609,31 @@ def hop(
     min_airborne_phases: int = 3,
     clearance: float = FLIGHT_CLEARANCE,
     min_flight_seconds: float = FLIGHT_SECONDS,
+    max_turns: float = 1.0,
 ) -> CheckResult:
     """A hopping gait (third paper, Figures 3 and 5: the Luxo lamp and the snake jumping),
-    periodic: travels by repeated flights.
+    periodic: travels by repeated flights, without turning over.
 
     Passes when the centre of mass ends at least `min_lengths` body lengths from where it
     started, horizontally and in any direction (the paper's fitness is the absolute
-    distance), and the body flies (`flights`: every point `clearance` body lengths off the
-    floor for `min_flight_seconds`) in at least `min_airborne_phases` separate phases.
+    distance), the body flies (`flights`: every point `clearance` body lengths off the
+    floor for `min_flight_seconds`) in at least `min_airborne_phases` separate phases, and
+    its frame turns less than `max_turns` full turns (net, either way) about its lateral
+    axis: a body that tumbles over as it flies rolls (`roll`), it does not hop.
     """
     t = _single(trajectory, "hop")
     travel, far = _distance(t, body_length, min_lengths)
     flown, flies = _airborne(
         trajectory, body_length, clearance, min_flight_seconds, min_airborne_phases
     )
-    return _result("hop", t["finite"], {**travel, **flown}, {**far, **flies})
+    turns = float(rotations(trajectory))
+    upright = {
+        f"turns < {max_turns:g} times about the lateral axis (got {turns:.2f})": abs(turns)
+        < max_turns
+    }
+    return _result(
+        "hop", t["finite"], {**travel, **flown, "turns": turns}, {**far, **flies, **upright}
+    )
 
 
 def roll(
