@@ -1,16 +1,21 @@
 """What a gradient through the simulation costs: time (in simulations) and peak memory.
 
-    python benchmarks/gradient.py [--batches 10,100] [--duration 5.0]
+    python benchmarks/gradient.py [--batches 10,100,1000] [--duration 5.0]
+        [--before PATH/TO/OTHER/CHECKOUT/src]
 
 For the cube forward task (T = 5 s at the search step, dt = 1 ms, smoothed as `compare`
 smooths it) and each batch size, in a fresh process: the wall time of one
 `jaxmotion.fitness_and_gradient` call against `task.evaluate` on the same batch (both
-compiled first; the ratio is what `compare` charges a gradient step), the compile time of
-the gradient, and the process's peak memory (`VmHWM`). Writes `benchmarks/gradient.json`.
+compiled first, medians of 3 calls; the ratio is what `compare` charges a gradient step),
+the compile time of the gradient, and the process's peak memory (`VmHWM`). With `--before`,
+every case runs a second time on the jaxmotion package under that path (e.g. a worktree of
+an earlier commit: `git worktree add /tmp/before <commit>`), in the same sitting. Writes
+`benchmarks/gradient.json`.
 """
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -43,32 +48,46 @@ print(json.dumps({"batch": batch, "gradient_s": grad_s, "evaluate_s": eval_s,
 """
 
 
+def _run(batch: int, duration: float, src: str | None) -> dict:
+    env = dict(os.environ)
+    if src is not None:
+        env["PYTHONPATH"] = src  # ahead of the installed package
+    out = subprocess.run(
+        [sys.executable, "-c", RUN, str(batch), str(duration)],
+        capture_output=True,
+        text=True,
+        check=True,
+        env=env,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("--batches", default="10,100")
+    p.add_argument("--batches", default="10,100,1000")
     p.add_argument("--duration", type=float, default=5.0)
+    p.add_argument("--before", metavar="SRC", help="another checkout's src folder to compare")
     p.add_argument("--json", default=str(Path(__file__).with_suffix(".json")))
     args = p.parse_args()
     rows = []
     print(f"cube, T = {args.duration:g} s, dt = 1 ms, 2 CPU devices")
     print(
-        f"{'B':>5} {'gradient s':>11} {'evaluate s':>11} {'ratio':>7} {'compile s':>10} {'peak MB':>8}"
+        f"{'code':>6} {'B':>5} {'gradient s':>11} {'evaluate s':>11} {'ratio':>7} "
+        f"{'compile s':>10} {'peak MB':>8}"
     )
+    versions = [("this", None)] + ([("before", args.before)] if args.before else [])
     for batch in [int(b) for b in args.batches.split(",")]:
-        out = subprocess.run(
-            [sys.executable, "-c", RUN, str(batch), str(args.duration)],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-        row = json.loads(out.stdout.strip().splitlines()[-1])
-        rows.append(row)
-        print(
-            f"{batch:>5} {row['gradient_s']:>11.2f} {row['evaluate_s']:>11.3f} "
-            f"{row['ratio']:>7.0f} {row['gradient_compile_s']:>10.1f} {row['peak_mb']:>8.0f}"
-        )
+        for name, src in versions:
+            row = {"code": name, **_run(batch, args.duration, src)}
+            rows.append(row)
+            print(
+                f"{name:>6} {batch:>5} {row['gradient_s']:>11.2f} {row['evaluate_s']:>11.3f} "
+                f"{row['ratio']:>7.1f} {row['gradient_compile_s']:>10.1f} "
+                f"{row['peak_mb']:>8.0f}",
+                flush=True,
+            )
     Path(args.json).write_text(json.dumps({"settings": vars(args), "rows": rows}, indent=2))
     print(f"wrote {args.json}")
 
