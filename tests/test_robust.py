@@ -79,6 +79,16 @@ def test_starts_are_reproducible_from_their_key():
     for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
         np.testing.assert_array_equal(x, y)
     assert not np.array_equal(a.positions.angles, c.positions.angles)
+    # nominal: the first start is the state itself, the others the same draws.
+    nominal = jm.Robustness(samples=3, nominal=True).starts(body, body.initial_state(), jr.key(7))
+    for x, y, s in zip(
+        jax.tree_util.tree_leaves(nominal),
+        jax.tree_util.tree_leaves(a),
+        jax.tree_util.tree_leaves(body.initial_state()),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(x[0], s)
+        np.testing.assert_array_equal(x[1:], y[1:])
 
 
 @pytest.mark.parametrize(
@@ -89,6 +99,7 @@ def test_starts_are_reproducible_from_their_key():
         (dict(velocity="fast"), "velocity = 'fast'"),
         (dict(reduce="median"), "reduce = 'median'; allowed: 'mean', 'worst'"),
         (dict(common="yes"), "common = 'yes'; allowed: True or False"),
+        (dict(nominal=1), "nominal = 1; allowed: True or False"),
     ],
 )
 def test_bad_settings_are_refused_naming_them(kwargs, match):
@@ -191,6 +202,7 @@ def test_a_config_asks_for_robustness_and_round_trips():
     with pytest.raises(ConfigError, match=r"\[robustness\] common = 1"):
         parse_config({**raw, "robustness": {"common": 1}})
     assert parse_config({**raw, "robustness": {"common": True}}).task.robustness.common
+    assert parse_config({**raw, "robustness": {"nominal": True}}).task.robustness.nominal
     with pytest.raises(ConfigError, match=r"\[robustness\].*'spin'"):
         parse_config({**raw, "robustness": {"spin": 0.1}})
     assert parse_config({k: v for k, v in raw.items() if k != "robustness"}).task.robustness is None

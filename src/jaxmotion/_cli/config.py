@@ -596,6 +596,7 @@ ROBUSTNESS = {
     "velocity": Key("number", 0.2, _nonnegative, ">= 0 (m/s, each component)"),
     "reduce": Key("string", "mean", lambda v: v in ("mean", "worst"), '"mean" or "worst"'),
     "common": Key("bool", False),
+    "nominal": Key("bool", False),
 }
 
 

@@ -58,9 +58,14 @@ class Robustness(eqx.Module):
     `samples` starts (common random numbers): comparisons are then exact, and the
     controllers are robust to those starts only.
 
+    With `nominal=True` the first of the `samples` starts is the task's own, unperturbed:
+    every score then includes the controller's fitness from where it will really start,
+    so a climber cannot survive on perturbed starts alone while failing from its real one
+    (the other starts are the same draws as without it).
+
     **Fields (static):** `samples` (starts per evaluation, K), `angles`, `orientation`,
     `velocity` (magnitudes), `reduce` (`"mean"` or `"worst"`), `common` (one draw of starts
-    for the whole search).
+    for the whole search), `nominal` (the first start unperturbed).
     """
 
     samples: int = eqx.field(static=True)
@@ -69,6 +74,7 @@ class Robustness(eqx.Module):
     velocity: float = eqx.field(static=True)
     reduce: Literal["mean", "worst"] = eqx.field(static=True)
     common: bool = eqx.field(static=True)
+    nominal: bool = eqx.field(static=True)
 
     def __init__(
         self,
@@ -78,6 +84,7 @@ class Robustness(eqx.Module):
         velocity: float = 0.2,
         reduce: Literal["mean", "worst"] = "mean",
         common: bool = False,
+        nominal: bool = False,
     ):
         if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
             raise ValueError(f"Robustness.samples = {samples!r}; allowed: an integer >= 1")
@@ -93,10 +100,14 @@ class Robustness(eqx.Module):
         if not isinstance(common, bool):
             raise ValueError(f"Robustness.common = {common!r}; allowed: True or False")
         self.common = common
+        if not isinstance(nominal, bool):
+            raise ValueError(f"Robustness.nominal = {nominal!r}; allowed: True or False")
+        self.nominal = nominal
 
     def starts(self, body: AbstractBody, state: BodyState, key: PRNGKeyArray) -> BodyState:
         """`samples` perturbed copies of `state` (one body's), stacked along a leading
-        axis; start `k` draws from `jax.random.fold_in(key, k)`."""
+        axis; start `k` draws from `jax.random.fold_in(key, k)` (with `nominal`, start 0
+        is `state` itself)."""
         return _starts(self, body, state, key)
 
     def perturb(self, body: AbstractBody, state: BodyState, key: PRNGKeyArray) -> BodyState:
@@ -158,7 +169,12 @@ class Robustness(eqx.Module):
 @eqx.filter_jit
 def _starts(robustness: Robustness, body, state, key):
     keys = jax.vmap(lambda k: jr.fold_in(key, k))(jnp.arange(robustness.samples))
-    return jax.vmap(lambda k: robustness.perturb(body, state, k))(keys)
+    starts = jax.vmap(lambda k: robustness.perturb(body, state, k))(keys)
+    if robustness.nominal:
+        starts = jax.tree_util.tree_map(
+            lambda s, a: s.at[0].set(jnp.asarray(a, s.dtype)), starts, state
+        )
+    return starts
 
 
 def _uniform(key, like, magnitude: float):
