@@ -162,7 +162,8 @@ def main() -> None:
     rows = []
     for name in args.configs.split(","):
         rows += measure(name, args.controllers, args.seed)
-    Path(args.json).write_text(json.dumps({"settings": vars(args), "rows": rows}, indent=2))
+        # After every config: a long run that stops keeps what it measured.
+        Path(args.json).write_text(json.dumps({"settings": vars(args), "rows": rows}, indent=2))
     print(f"wrote {args.json}")
 
 

@@ -270,4 +270,7 @@ def test_compare_writes_a_table_and_a_plot_on_equal_budgets(tmp_path):
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["gradient_cost_simulations"] == 9
     assert set(summary["strategies"]) == {"plain", "final"}
+    # Refinement returns the best version it saw, its start included.
+    for strategy in summary["strategies"].values():
+        assert all(b >= a for a, b in zip(summary["start_best"], strategy["best"], strict=True))
     assert "| stochastic search |" in (folder / "compare.md").read_text()
