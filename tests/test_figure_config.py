@@ -51,6 +51,7 @@ def test_a_figure_config_builds_figure_time_bsr_and_serial_search():
         "reseed_every": 200,
         "enrich": 0,
         "runs": 1,
+        "accurate_candidates": 0,
     }
 
 

@@ -286,6 +286,7 @@ def test_the_configs_describe_the_papers_largest_run(name):
         "generations": 20,
         "size": 2000,
         "mutations": 3,
+        "accurate_candidates": 0,
     }
     assert experiment.task.objective.to_dict() == {"distance": 1.0}
     assert (experiment.task.duration, experiment.task.dt) == (5.0, 0.005)
