@@ -16,7 +16,7 @@ import pytest
 
 import jaxmotion as jm
 from jaxmotion._body.lattice import _spring_forces
-from jaxmotion._control.regimes import _mix, _pick
+from jaxmotion._control.regimes import _mix, _pick_among
 from jaxmotion._sim.simulate import simulate_batch
 
 # In float64 the written derivatives and JAX's differ only by the order of their sums:
@@ -29,10 +29,11 @@ def _symmetric(rng, n, batch, low, high):
     return jnp.asarray((a + np.swapaxes(a, 0, 1)) / 2)
 
 
-def _assert_same_vjp(fn, args, cotangent):
-    """`fn`'s custom VJP against the VJP JAX derives from its body (`fn.fun`)."""
+def _assert_same_vjp(fn, args, cotangent, body=None):
+    """`fn`'s custom VJP against the VJP JAX derives from its body (`fn.fun` unless
+    given)."""
     out, written = jax.vjp(fn, *args)
-    reference_out, derived = jax.vjp(fn.fun, *args)
+    reference_out, derived = jax.vjp(fn.fun if body is None else body, *args)
     jax.tree_util.tree_map(
         lambda a, b: np.testing.assert_allclose(a, b, rtol=VJP_RTOL, atol=0), out, reference_out
     )
@@ -68,7 +69,12 @@ def test_regime_table_derivatives_are_the_derivatives(batch, x64):
     plan = jnp.asarray(rng.normal(size=(regimes, n, n, *batch)))
     cotangent = jnp.asarray(rng.normal(size=(n, n, *batch)))
     index = jnp.asarray(rng.integers(0, regimes, size=batch))
-    _assert_same_vjp(_pick, (plan, index), cotangent)
+    _assert_same_vjp(
+        lambda p, i: _pick_among(regimes, p, i),
+        (plan, index),
+        cotangent,
+        body=lambda p, i: _pick_among.fun(regimes, p, i),
+    )
     weights = jnp.asarray(rng.uniform(0.0, 1.0, size=(regimes, *batch)))
     _assert_same_vjp(_mix, (plan, weights), cotangent)
 

@@ -88,6 +88,14 @@ def _curve(history_fitness: np.ndarray, costs: np.ndarray) -> tuple[np.ndarray, 
     return np.cumsum(costs), np.maximum.accumulate(history_fitness)
 
 
+def _budget(experiment: Experiment, settings: CompareSettings) -> tuple[int, int]:
+    """The simulations of each method, and the search's share of them when it is followed
+    by refinement (its initial set, then `fraction` of the rest)."""
+    budget = search_evaluations(experiment.search)
+    initial = SEARCHES[experiment.search["algorithm"]].initial(experiment.search)
+    return budget, initial + max(1, round(settings.fraction * (budget - initial)))
+
+
 def compare_one(
     experiment: Experiment, seed: int, settings: CompareSettings, costs: dict[str, float]
 ):
@@ -97,12 +105,10 @@ def compare_one(
     import optax
 
     task = experiment.task
-    budget = search_evaluations(experiment.search)
+    budget, share = _budget(experiment, settings)
     alone, _ = run_searcher(experiment, experiment.search, budget, seed)
     a = _curve(alone.history.fitness, np.ones(len(alone.history)))
 
-    initial = SEARCHES[experiment.search["algorithm"]].initial(experiment.search)
-    share = initial + max(1, round(settings.fraction * (budget - initial)))
     first, used = run_searcher(experiment, experiment.search, share, seed)
     start, _ = fittest(first, settings.top_k)
     k = jax.tree_util.tree_leaves(start)[0].shape[0]
@@ -138,9 +144,7 @@ def run_compare(
     `compare.csv` (per seed and method, the best fitness), `compare.md` (the table),
     `compare.png` (best fitness against simulations spent) and `summary.json`."""
     task = experiment.task
-    budget = search_evaluations(experiment.search)
-    initial = SEARCHES[experiment.search["algorithm"]].initial(experiment.search)
-    share = initial + max(1, round(settings.fraction * (budget - initial)))
+    budget, share = _budget(experiment, settings)
     budgeted(experiment.search, share)  # refuse a share that does not fit before anything
     if "final" in settings.strategies and not settings.final_phase <= task.duration:
         raise ConfigError(

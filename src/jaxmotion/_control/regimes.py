@@ -1,6 +1,7 @@
 """Time-based regime controllers of the first paper (section 2.2) and their search space
 (section 2.3, Table 2)."""
 
+import functools
 import math
 from typing import ClassVar
 
@@ -162,29 +163,31 @@ class Regimes(AbstractController):
 # backward pass); the written ones form the stack's cotangent in one broadcast product.
 
 
-@jax.custom_vjp
 def _pick(plan, index):
     """`plan[index]` (plan `(C, n, n, *batch)`, index `batch`), as a chain of selects:
     under vmap an index per controller would become a gather, which is slow on CPU;
     selects stay elementwise."""
+    return _pick_among(plan.shape[0], plan, index)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _pick_among(regimes: int, plan, index):
     table = plan[0]
-    for c in range(1, plan.shape[0]):
+    for c in range(1, regimes):
         table = jnp.where(index == c, plan[c], table)
     return table
 
 
-def _pick_fwd(plan, index):
-    # `slots` carries only the number of regimes (a residual must be an array).
-    return _pick(plan, index), (index, jnp.zeros(plan.shape[0], dtype=plan.dtype))
+def _pick_fwd(regimes, plan, index):
+    return _pick_among(regimes, plan, index), index
 
 
-def _pick_bwd(residuals, cotangent):
-    index, slots = residuals
-    regimes = jnp.arange(slots.shape[0]).reshape(slots.shape + (1,) * index.ndim)
-    return _along((regimes == index).astype(cotangent.dtype), cotangent), None
+def _pick_bwd(regimes, index, cotangent):
+    which = jnp.arange(regimes).reshape((regimes,) + (1,) * index.ndim)
+    return _along((which == index).astype(cotangent.dtype), cotangent), None
 
 
-_pick.defvjp(_pick_fwd, _pick_bwd)
+_pick_among.defvjp(_pick_fwd, _pick_bwd)
 
 
 @jax.custom_vjp
