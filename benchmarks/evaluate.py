@@ -17,8 +17,10 @@ the peers' setting, and the accuracy-matched step), one evaluation is one 5 s si
   observation or objective), the reference the project measured before this code existed.
 
 Also measured: the compile time of `evaluate`, its peak memory at B = 10,000 (a fresh
-process, its `VmHWM`), and diffrax's overhead against a `lax.scan` of the same step. Results
-go to `benchmarks/evaluate.json` for comparison across commits.
+process, its `VmHWM`), and diffrax's overhead against a `lax.scan` of the same step
+(`--no-perf-lab`, `--no-memory`, `--no-overhead` and the other `--no-*` options leave parts
+out: `benchmarks/peers.py` times `evaluate` alone). Results go to `benchmarks/evaluate.json`
+for comparison across commits.
 """
 
 import argparse
@@ -190,6 +192,8 @@ def main() -> None:
     p.add_argument("--no-vmap", action="store_true")
     p.add_argument("--no-memory", action="store_true")
     p.add_argument("--perf-lab", default=str(HERE.parent.parent / "shared" / "perf-lab"))
+    p.add_argument("--no-perf-lab", action="store_true")
+    p.add_argument("--no-overhead", action="store_true", help="skip diffrax vs lax.scan")
     p.add_argument("--json", default=str(HERE / "evaluate.json"))
     args = p.parse_args()
 
@@ -247,7 +251,7 @@ def main() -> None:
                     start = time.perf_counter()
                     numpy_model.simulate(model)
                     row["numpy"] = batch / (time.perf_counter() - start)
-                if name == "cube" and dt == 1e-3 and batch in (100, 1000):
+                if not args.no_perf_lab and name == "cube" and dt == 1e-3 and batch in (100, 1000):
                     rate = perf_lab_rate(Path(args.perf_lab), batch, args.repeats)
                     if rate:
                         row["perf_lab"] = rate
@@ -263,7 +267,7 @@ def main() -> None:
                     flush=True,
                 )
     result = {"rows": rows}
-    if "cube" in args.lattices:
+    if "cube" in args.lattices and not args.no_overhead:
         overhead = [diffrax_overhead(b, 1e-3, args.repeats) for b in (1, 100, 1000)]
         for o in overhead:
             print(
