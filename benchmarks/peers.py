@@ -115,13 +115,10 @@ def main() -> None:
     rounds = []
     for k in range(args.rounds):
         row = {OURS: ours(batches, args.repeats)}
-        print(f"round {k + 1}: {OURS} " + ", ".join(f"B={b}: {row[OURS][b]:,.0f}" for b in batches))
         row.update(peers(args.peers_python, perf_lab, impls))
-        for impl in impls:
-            print(
-                f"round {k + 1}: {impl} "
-                + ", ".join(f"B={b}: {row[impl][b]:,.0f}" for b in batches)
-            )
+        for name in [OURS, *impls]:
+            rates = ", ".join(f"B={b}: {row[name][b]:,.0f}" for b in batches)
+            print(f"round {k + 1}: {name} {rates}")
         rounds.append(row)
 
     print(f"\nEvaluations per second of the cube at dt = 1 ms, float32, {os.cpu_count()} cores, ")

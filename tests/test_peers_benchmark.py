@@ -3,23 +3,13 @@
 The real peers need Numba and Taichi (not jaxmotion dependencies), so these tests run the
 driver against stand-in scripts that print what perf-lab's `bench_peers.py` prints."""
 
-import importlib.util
 import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load():
-    spec = importlib.util.spec_from_file_location("peers_benchmark", ROOT / "benchmarks/peers.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-peers_benchmark = _load()
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import peers as peers_benchmark
 
 # Lines in the format bench_peers.py prints (evals/s from a run on 2026-12-05).
 REAL_LINES = """\
