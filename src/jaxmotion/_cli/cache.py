@@ -13,6 +13,8 @@ from pathlib import Path
 
 #: Environment variable naming the cache folder; `off` (or an empty value) turns it off.
 CACHE_ENV = "JAXMOTION_COMPILATION_CACHE"
+#: JAX's own threshold (seconds of compilation below which a program is not stored).
+MIN_COMPILE_TIME_ENV = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
 
 
 def default_cache_dir() -> Path:
@@ -31,8 +33,10 @@ def use_compilation_cache(directory: str | os.PathLike | None = None) -> Path | 
     the cache off), else JAX's own `JAX_COMPILATION_CACHE_DIR` when that is set (left as JAX
     read it), else `default_cache_dir()`.
 
-    Programs that compile in under 0.5 s are not stored (loading them would not pay). Call it
-    before anything compiles: JAX opens its cache once, at the first compilation.
+    Programs that compile in under 0.5 s are not stored (loading them would not pay), unless
+    JAX's own `JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS` is set, which is then left as JAX
+    read it. Call it before anything compiles: JAX opens its cache once, at the first
+    compilation.
 
     **Returns:** the cache folder in use, or None when it is turned off.
     """
@@ -55,5 +59,6 @@ def use_compilation_cache(directory: str | os.PathLike | None = None) -> Path | 
             f"{CACHE_ENV})"
         )
     jax.config.update("jax_compilation_cache_dir", str(path))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    if MIN_COMPILE_TIME_ENV not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     return path
