@@ -57,6 +57,11 @@ def test_the_search_finds_the_planted_transition_and_never_loses(composite):
     assert result.best_fitness >= float(start)
     assert abs(float(result.best[0]) / DT - 60) <= 5
     assert result.evaluations == 4 + 3 * 2 * 4
+    # The composite is the task of a protocol searcher: the driver runs the same search.
+    search = jm.TransitionSearch(composite.duration, num_arrays=4, mutations=2, tick=composite.tick)
+    driven = jm.drive(search, composite, key=jr.key(0), steps=3 * 2)
+    np.testing.assert_array_equal(driven.history.fitness, result.history.fitness)
+    np.testing.assert_array_equal(np.asarray(driven.best), np.asarray(result.best))
 
 
 def test_bad_composites_are_refused():

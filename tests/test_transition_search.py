@@ -5,12 +5,16 @@ The objectives are NumPy functions (nothing of theirs compiles), and almost ever
 has 16 arrays of 3 or 2 transitions, so the file compiles the search's steps for a handful
 of shapes."""
 
+import equinox as eqx
+import jax
+import jax.numpy as jnp
 import jax.random as jr
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import jaxmotion as jm
 from jaxmotion._search.transitions import (
     TransitionSearch,
     TransitionSearchState,
@@ -206,16 +210,64 @@ def test_same_key_same_search_other_key_another():
 
 
 def test_the_driver_is_init_then_steps():
-    """`transition_search` is `TransitionSearch.init` then G * H `step`s: the state resumes
-    exactly."""
+    """`transition_search` is the protocol's `init` then G * H `step`s (one `evaluate` call
+    each), run by the common driver."""
     evaluate = quadratic([0.4, 1.7, 2.2])
     result = transition_search(evaluate, DURATION, key=jr.key(8), num_transitions=3, rounds=2)
-    search = TransitionSearch(DURATION)
-    state, _ = search.init(evaluate, key=jr.key(8), num_transitions=3)
+    search = TransitionSearch(DURATION, num_transitions=3)
+    state, _ = search.init(evaluate, key=jr.key(8))
     for _ in range(2 * H):
         state, _ = search.step(evaluate, state)
+    assert search.steps_done(state) == 2 * H
+    # ask and tell are pure: jitted whole, they give what they give eagerly.
+    asked = search.ask(evaluate, state)
+    np.testing.assert_array_equal(
+        np.asarray(eqx.filter_jit(search.ask)(None, state)), np.asarray(asked)
+    )
+    fitness = jnp.asarray(evaluate(asked), dtype=asked.dtype)
+    told = search.tell(state, asked, fitness)
+    jitted = eqx.filter_jit(search.tell)(state, asked, fitness)
+    np.testing.assert_array_equal(np.asarray(jitted.transitions), np.asarray(told.transitions))
+    np.testing.assert_array_equal(np.asarray(jitted.fitness), np.asarray(told.fitness))
     np.testing.assert_array_equal(np.asarray(state.transitions), np.asarray(result.population))
     np.testing.assert_array_equal(np.asarray(state.fitness), np.asarray(result.fitness))
+    driven = jm.drive(search, evaluate, key=jr.key(8), steps=2 * H)
+    np.testing.assert_array_equal(driven.history.fitness, result.history.fitness)
+    np.testing.assert_array_equal(driven.history.step, result.history.step)
+
+
+def test_a_search_continued_from_a_round_equals_the_uninterrupted_one():
+    """The state after round 2 and the history up to it continue to the very result of
+    four rounds in one go (a checkpoint's contract)."""
+    evaluate = quadratic([0.9, 1.1, 2.6])
+    run = lambda rounds, **more: transition_search(
+        evaluate, DURATION, key=jr.key(11), num_transitions=3, rounds=rounds, **more
+    )
+    whole, half = run(4), run(2)
+    continued = run(4, state=half.state, history=half.history)
+    np.testing.assert_array_equal(continued.history.fitness, whole.history.fitness)
+    np.testing.assert_array_equal(continued.history.step, whole.history.step)
+    np.testing.assert_array_equal(np.asarray(continued.population), np.asarray(whole.population))
+    assert continued.best_fitness == whole.best_fitness
+    with pytest.raises(ValueError, match="history holds"):
+        run(4, state=half.state, history=whole.history)
+
+
+def test_the_state_round_trips_through_the_checkpoint_format():
+    """The state is a pytree the CLI's checkpoint format writes and reads back exactly,
+    with the structure `template` gives without evaluating anything."""
+    from jaxmotion._cli.checkpoint import state_from_bytes, state_to_bytes
+
+    result = transition_search(noisy_plateau(2), DURATION, key=jr.key(12), initial=[0.5, 2.0])
+    search = TransitionSearch(DURATION, initial=[0.5, 2.0])
+    payload, part = state_to_bytes(result.state, result.history)
+    state, history = state_from_bytes(search.template(never_called), part, payload, None)
+    leaves = jax.tree_util.tree_leaves(state), jax.tree_util.tree_leaves(result.state)
+    for a, b in zip(*leaves, strict=True):
+        if jnp.issubdtype(jnp.asarray(a).dtype, jax.dtypes.prng_key):
+            a, b = jr.key_data(a), jr.key_data(b)
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    np.testing.assert_array_equal(history.fitness, result.history.fitness)
 
 
 def test_nan_is_never_kept_and_never_best():
@@ -280,7 +332,9 @@ def test_mutation_randomises_a_third_of_the_time_and_perturbs_by_the_scale():
     start = np.tile([0.75, 1.5, 2.25], (Q, 1))
     moves, which = [], []
     for k in range(64):
-        mutants = np.asarray(search.ask(state_of(start, np.zeros(Q), key=k)), dtype=np.float64)
+        mutants = np.asarray(
+            search.ask(never_called, state_of(start, np.zeros(Q), key=k)), dtype=np.float64
+        )
         changed = mutants != start
         assert np.all(changed.sum(axis=1) <= 1)
         i = np.argmax(np.abs(mutants - start), axis=1)
@@ -326,7 +380,7 @@ def test_mutants_stay_ordered_within_the_duration_and_on_the_grid(
     else:
         start = rng.integers(0, num_ticks + 1, size=(Q, 3)) * np.float32(tick)
     start = np.sort(np.minimum(start.astype(np.float32), np.float32(duration)), axis=1)
-    mutants = np.asarray(search.ask(state_of(start, np.zeros(Q), key=seed)))
+    mutants = np.asarray(search.ask(never_called, state_of(start, np.zeros(Q), key=seed)))
     assert ascending_within(mutants, np.float32(duration))
     assert np.all(np.sum(mutants != start, axis=1) <= 1)
     if tick is not None:

@@ -166,11 +166,15 @@ class Composite(eqx.Module):
         rounds: int = 16,
         mutations: int = 4,
         callback=None,
+        state=None,
+        history=None,
     ) -> TransitionSearchResult:
         """The transition-point search (second paper, Figure 5; see `transition_search`)
-        from `initial` (default: equally spaced), on the tick grid."""
+        from `initial` (default: equally spaced), on the tick grid; `state` and `history`
+        continue a search from a round's state (`callback(round, state)`) and the history
+        up to it."""
         return transition_search(
-            self.evaluate,
+            self,
             self.duration,
             key=key,
             initial=self.equally_spaced() if initial is None else initial,
@@ -179,6 +183,8 @@ class Composite(eqx.Module):
             mutations=mutations,
             tick=self.tick,
             callback=callback,
+            state=state,
+            history=history,
         )
 
 

@@ -115,6 +115,11 @@ class AbstractSearcher(eqx.Module):
     def steps_done(self, state) -> int:
         """How many steps (after `init`) the state has made."""
 
+    def history_step(self, state) -> int:
+        """The step label the history gives the evaluations of the step just told (default:
+        `steps_done`; the transition search labels them with their round)."""
+        return self.steps_done(state)
+
     @abc.abstractmethod
     def best(self, state) -> tuple[AbstractController, float]:
         """The best controller the state holds and its fitness."""
@@ -245,7 +250,7 @@ def drive(
             fitness = _recorded(fitness).reshape(runs, -1)
             if "num_valid" in extra:
                 fitness = fitness[:, :last]
-            label = searcher.steps_done(state)
+            label = searcher.history_step(state)
             chunk = (fitness, np.full(fitness.shape[1], label, dtype=np.int64))
             chunks.append(chunk)
             if callback is not None:

@@ -13,6 +13,7 @@ import math
 import numbers
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -23,6 +24,7 @@ from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from .hill_climb import _check_positive_int
 from .history import History
+from .protocol import AbstractSearcher, SearchResult, drive
 from .serial import _reseeded
 
 # The fraction of mutations that randomise the chosen point (Figure 5: "randomize 1/3 of the
@@ -30,6 +32,20 @@ from .serial import _reseeded
 RANDOMISE_SHARE = 1 / 3
 
 Evaluate = Callable[[Float[Array, "arrays transitions"]], Float[ArrayLike, " arrays"]]
+
+
+def _evaluator(task) -> Evaluate:
+    """The function that scores transition arrays: the task's `evaluate` (a `Composite`'s),
+    or the task itself when it is a plain function."""
+    evaluate = getattr(task, "evaluate", None)
+    if callable(evaluate):
+        return evaluate
+    if callable(task):
+        return task
+    raise TypeError(
+        f"the task of a transition search is {type(task).__name__}; allowed: a `Composite` "
+        "(anything with `evaluate(transitions)`) or a function of the transition arrays"
+    )
 
 
 class TransitionSearchState(eqx.Module):
@@ -79,8 +95,13 @@ def _check_positive_number(name: str, value, unit: str) -> float:
 _TICK_TOLERANCE = 1e-6
 
 
-class TransitionSearch(eqx.Module):
-    """Transition-point search (second paper, Figure 5), as pure init / ask / tell functions.
+class TransitionSearch(AbstractSearcher):
+    """Transition-point search (second paper, Figure 5), a searcher of the common protocol
+    (`AbstractSearcher`: `init` / `ask` / `evaluate` / `tell`, run by `drive`) whose
+    candidates are transition arrays rather than controllers, and whose task is a `Composite`
+    (or anything with `evaluate(transitions)`, or that function itself). It is not in
+    `SEARCHERS`, the registry of controller searches that configs' `[search] algorithm`
+    names: the `compose` command runs it.
 
     The set holds `num_arrays` transition arrays (the paper's Q = 16). A round makes
     `mutations` (the paper's H = 4) mutation steps; in each, every array mutates one point
@@ -103,9 +124,11 @@ class TransitionSearch(eqx.Module):
     period, and so simulate alike, are the same array. A perturbation much smaller than a
     tick rounds back to where it was; randomisation still moves the point.
 
-    `ask` and `tell` are jitted; between them the driver calls the user's `evaluate`, which
+    `ask` and `tell` are jitted; between them the driver calls the task's `evaluate`, which
     is not traced here. `duration`, `tick` and `perturb_scale` reach the compiled steps as
-    arrays, so searches that differ only in them share their compilations.
+    arrays, so searches that differ only in them share their compilations. A step is one
+    mutation step (one call of `evaluate`); the history labels a step's evaluations with its
+    round, `1` to `rounds`, and the starting set with 0.
 
     **Arguments:**
 
@@ -119,6 +142,10 @@ class TransitionSearch(eqx.Module):
         local (95% move the point by less than 0.4 of that interval), leaving long jumps to
         randomisation; on a smooth objective the defaults find an optimum to within about
         1% of the duration.
+    - `initial`: the array every member of the set starts from (the user's guess):
+        ascending times within `[0, duration]`; or
+    - `num_transitions`: start from that many transitions equally spaced over the duration.
+        With neither, `init` starts from the task's `equally_spaced()` (a `Composite`'s).
 
     **Raises:** `ValueError` for a setting out of range, before anything compiles.
     """
@@ -128,6 +155,9 @@ class TransitionSearch(eqx.Module):
     mutations: int = eqx.field(static=True)
     tick: float | None = eqx.field(static=True)
     perturb_scale: float = eqx.field(static=True)
+    initial: tuple[float, ...] | None = eqx.field(static=True)
+
+    name: ClassVar[str] = "transition_search"
 
     def __init__(
         self,
@@ -137,6 +167,8 @@ class TransitionSearch(eqx.Module):
         mutations: int = 4,
         tick: float | None = None,
         perturb_scale: float = 0.2,
+        initial: ArrayLike | None = None,
+        num_transitions: int | None = None,
     ):
         self.duration = _check_positive_number("duration", duration, " (s)")
         self.num_arrays = _check_positive_int("num_arrays", num_arrays)
@@ -156,6 +188,11 @@ class TransitionSearch(eqx.Module):
                 )
         self.tick = tick
         self.perturb_scale = _check_positive_number("perturb_scale", perturb_scale, "")
+        if initial is None and num_transitions is None:
+            self.initial = None
+        else:
+            start = self.start(initial=initial, num_transitions=num_transitions)
+            self.initial = tuple(float(t) for t in start)
 
     def start(
         self,
@@ -208,22 +245,19 @@ class TransitionSearch(eqx.Module):
         return start
 
     def init(
-        self,
-        evaluate: Evaluate,
-        *,
-        key: PRNGKeyArray,
-        initial: ArrayLike | None = None,
-        num_transitions: int | None = None,
+        self, task, *, key: PRNGKeyArray
     ) -> tuple[TransitionSearchState, Float[Array, " arrays"]]:
-        """Make `num_arrays` identical copies of the starting array (`start`, rounded to the
-        tick grid if there is one) and evaluate them in one call of `evaluate`.
+        """Make `num_arrays` identical copies of the starting array (`initial`, or the task's
+        `equally_spaced()`; rounded to the tick grid if there is one) and evaluate them in
+        one call of the task's `evaluate`.
 
         **Returns:** the state and the fitness of the starting set (NaN as `-inf`).
         """
-        start = self.start(initial=initial, num_transitions=num_transitions)
+        evaluate = _evaluator(task)
         dtype = jnp.result_type(float)
         duration, tick, _ = self._settings(dtype)
-        transitions = _population(jnp.asarray(start, dtype=dtype), self.num_arrays, duration, tick)
+        start = jnp.asarray(self._start(task), dtype=dtype)
+        transitions = _population(start, self.num_arrays, duration, tick)
         fitness = _evaluated(evaluate, transitions, self.num_arrays)
         state = TransitionSearchState(
             transitions=transitions,
@@ -235,25 +269,31 @@ class TransitionSearch(eqx.Module):
         )
         return state, fitness
 
-    def ask(self, state: TransitionSearchState) -> Float[Array, "arrays transitions"]:
+    def ask(self, task, state: TransitionSearchState) -> Float[Array, "arrays transitions"]:
         """This mutation step's mutant of every array, `(arrays, transitions)`, ready for
-        `evaluate`."""
+        `evaluate` (the task is not read)."""
+        del task
         self._check_state(state)
         return _ask(state, *self._settings(state.transitions.dtype))
+
+    def evaluate(self, task, state, candidates) -> tuple[Float[Array, " arrays"], dict]:
+        """The task's fitness of the mutants (one call; NaN as `-inf`)."""
+        del state
+        return _evaluated(_evaluator(task), candidates, self.num_arrays), {}
 
     def tell(
         self,
         state: TransitionSearchState,
-        mutants: Float[Array, "arrays transitions"],
+        candidates: Float[Array, "arrays transitions"],
         fitness: Float[ArrayLike, " arrays"],
     ) -> TransitionSearchState:
-        """Replace every array whose mutant has strictly greater fitness (NaN never does);
-        after the round's last mutation step, rank the set and replace its worse half by
-        its better half."""
+        """Replace every array whose mutant (`candidates`) has strictly greater fitness (NaN
+        never does); after the round's last mutation step, rank the set and replace its worse
+        half by its better half."""
         self._check_state(state)
-        if jnp.shape(mutants) != state.transitions.shape:
+        if jnp.shape(candidates) != state.transitions.shape:
             raise ValueError(
-                f"mutants have shape {jnp.shape(mutants)}; expected "
+                f"mutants have shape {jnp.shape(candidates)}; expected "
                 f"{state.transitions.shape} (arrays, transitions), as `ask` gives them"
             )
         if jnp.shape(fitness) != state.fitness.shape:
@@ -263,19 +303,70 @@ class TransitionSearch(eqx.Module):
             )
         return _tell(
             state,
-            mutants,
+            candidates,
             jnp.asarray(fitness, dtype=state.fitness.dtype),
             jnp.asarray(self.mutations, dtype=jnp.int32),
         )
 
-    def step(
-        self, evaluate: Evaluate, state: TransitionSearchState
-    ) -> tuple[TransitionSearchState, Float[Array, " arrays"]]:
-        """ask, evaluate (one call), tell. Returns the new state and the fitness of this
-        step's mutants (NaN as `-inf`)."""
-        mutants = self.ask(state)
-        fitness = _evaluated(evaluate, mutants, self.num_arrays)
-        return self.tell(state, mutants, fitness), fitness
+    def steps_done(self, state: TransitionSearchState) -> int:
+        """Mutation steps made: `round * mutations + mutation`."""
+        return int(state.round) * self.mutations + int(state.mutation)
+
+    def history_step(self, state: TransitionSearchState) -> int:
+        """The round the step just told belongs to (1 for the first round's steps)."""
+        return int(state.round) + (int(state.mutation) > 0)
+
+    def best(self, state: TransitionSearchState) -> tuple[Float[Array, " transitions"], float]:
+        """The best array of the set (the first on ties: the set is ranked after a round)
+        and its fitness."""
+        fitness = np.asarray(state.fitness)
+        best = int(np.argmax(fitness))
+        return state.transitions[best], float(fitness[best])
+
+    def template(self, task) -> TransitionSearchState:
+        """The state's structure and shapes (zeros), evaluating nothing."""
+        dtype = jnp.result_type(float)
+        n = len(self._start(task))
+        return TransitionSearchState(
+            transitions=jnp.zeros((self.num_arrays, n), dtype),
+            fitness=jnp.zeros(self.num_arrays, dtype),
+            key=jr.key(0),
+            round=jnp.asarray(0, dtype=jnp.int32),
+            mutation=jnp.asarray(0, dtype=jnp.int32),
+            evaluations=jnp.asarray(0, dtype=jnp.int32),
+        )
+
+    def check_resume(self, state: TransitionSearchState, history) -> None:
+        self._check_state(state)
+        if history is not None and history.fitness.shape[0] != int(state.evaluations):
+            raise ValueError(
+                f"the history holds {history.fitness.shape[0]} evaluations but the state "
+                f"{int(state.evaluations)}; allowed: the history recorded with this state"
+            )
+
+    def result(self, state: TransitionSearchState, runs: list[History]):
+        best, fitness = self.best(state)
+        return TransitionSearchResult(
+            best=best,
+            best_fitness=fitness,
+            history=runs[0],
+            state=state,
+            population=state.transitions,
+            fitness=state.fitness,
+            evaluations=int(state.evaluations),
+        )
+
+    def _start(self, task) -> np.ndarray:
+        if self.initial is not None:
+            return np.asarray(self.initial)
+        equally_spaced = getattr(task, "equally_spaced", None)
+        if equally_spaced is None:
+            raise ValueError(
+                "initial = None and num_transitions = None, and the task has no "
+                "`equally_spaced()`; allowed: give the initial transition times or how many "
+                "transitions there are"
+            )
+        return self.start(initial=equally_spaced())
 
     def _settings(self, dtype):
         # No tick is a tick of 0, so that both kinds of search share one compilation.
@@ -369,28 +460,25 @@ def _tell(state: TransitionSearchState, mutants, fitness, mutations):
 
 
 @dataclass(frozen=True)
-class TransitionSearchResult:
-    """What `transition_search` returns.
+class TransitionSearchResult(SearchResult):
+    """What `transition_search` (and `drive` with a `TransitionSearch`) returns: a
+    `SearchResult` whose candidates are transition arrays.
 
     - `best`: the best transition array found, `(transitions,)` (s), ascending within
         `[0, duration]` (the first of the set on ties).
     - `best_fitness`: its fitness (maximised; never below the start's).
-    - `population`: the final set of transition arrays, `(arrays, transitions)`.
-    - `fitness`: their fitness, `(arrays,)`.
     - `history`: the fitness of every evaluation, in order (`History`): step 0 holds the
         starting set, step `r` the `mutations * num_arrays` evaluations of round `r`.
+    - `state`: the final `TransitionSearchState` (resume or inspect it).
+    - `population`: the final set of transition arrays, `(arrays, transitions)`.
+    - `fitness`: their fitness, `(arrays,)`.
     - `evaluations`: how many arrays were evaluated, `num_arrays * (1 + rounds *
         mutations)`.
-    - `state`: the final `TransitionSearchState` (resume or inspect it).
     """
 
-    best: Float[Array, " transitions"]
-    best_fitness: float
-    population: Float[Array, "arrays transitions"]
-    fitness: Float[Array, " arrays"]
-    history: History
-    evaluations: int
-    state: TransitionSearchState
+    population: Float[Array, "arrays transitions"] = None
+    fitness: Float[Array, " arrays"] = None
+    evaluations: int = 0
 
 
 def transition_search(
@@ -406,6 +494,8 @@ def transition_search(
     tick: float | None = None,
     perturb_scale: float = 0.2,
     callback: Callable[[int, TransitionSearchState], None] | None = None,
+    state: TransitionSearchState | None = None,
+    history: History | None = None,
 ) -> TransitionSearchResult:
     """Transition-point search (second paper, Figure 5): when to switch between the
     controllers of a composite motion; fitness is maximised.
@@ -437,6 +527,9 @@ def transition_search(
         interval between the point's neighbours.
     - `callback`: called as `callback(0, state)` once the start is evaluated and
         `callback(r, state)` after round `r` (its ranking and replacement included).
+    - `state`, `history`: continue from a state a `callback` was given after a round and
+        the result's history up to it (`result.history` of a search with fewer rounds, or a
+        saved pair): with the same settings the result is bitwise the uninterrupted one's.
 
     **Returns:** a `TransitionSearchResult`.
 
@@ -450,27 +543,24 @@ def transition_search(
         mutations=mutations,
         tick=tick,
         perturb_scale=perturb_scale,
+        initial=initial,
+        num_transitions=num_transitions,
     )
-    state, fitness = search.init(
-        evaluate, key=key, initial=initial, num_transitions=num_transitions
-    )
-    parts = [History(np.asarray(fitness), np.zeros(search.num_arrays, dtype=np.int64))]
-    if callback is not None:
-        callback(0, state)
-    for r in range(1, rounds + 1):
-        for _ in range(search.mutations):
-            state, fitness = search.step(evaluate, state)
-            parts.append(History(np.asarray(fitness), np.full(search.num_arrays, r)))
-        if callback is not None:
-            callback(r, state)
-    fitness = np.asarray(state.fitness)
-    best = int(np.argmax(fitness))  # the first on ties; the set is ranked after a round
-    return TransitionSearchResult(
-        best=state.transitions[best],
-        best_fitness=float(fitness[best]),
-        population=state.transitions,
-        fitness=state.fitness,
-        history=History.concatenate(parts),
-        evaluations=int(state.evaluations),
+    if search.initial is None:
+        search.start()  # raises: neither `initial` nor `num_transitions` was given
+    _evaluator(evaluate)
+
+    def report(state, part):
+        del part
+        if callback is not None and int(state.mutation) == 0:
+            callback(int(state.round), state)
+
+    return drive(
+        search,
+        evaluate,
+        key=key,
+        steps=rounds * search.mutations,
+        callback=report,
         state=state,
+        history=history,
     )
