@@ -247,3 +247,40 @@ def test_a_component_run_first_is_recorded_by_its_results_folder(components):
     }
     again = parse_compose_config(compose.config)
     assert again.config == compose.config
+
+
+def test_an_interrupted_transition_search_resumes_to_the_uninterrupted_result(components, tmp_path):
+    """Stopped after its third mutation step, the compose run saves its transition search
+    and writes no folder; resumed, it finishes with the uninterrupted run's transitions and
+    history, bitwise, and removes the checkpoint. A checkpoint of another compose config is
+    refused before anything runs."""
+    from jaxmotion._cli.compose import run_compose
+    from jaxmotion._cli.results import Interrupted
+
+    search = {"arrays": 4, "rounds": 3, "mutations": 2}
+    compose = parse_compose_config(compose_raw(components, search=search), name="duo")
+    whole = run_compose(compose, directory=tmp_path / "whole", animation=False)
+    asked = []
+
+    def stop():
+        asked.append(1)
+        return len(asked) == 3
+
+    cut = tmp_path / "cut"
+    with pytest.raises(Interrupted) as stopped:
+        run_compose(compose, directory=cut, animation=False, checkpoint_every=1e9, stop=stop)
+    saved = stopped.value.checkpoint
+    assert [p.name for p in cut.iterdir()] == [saved.name]  # the checkpoint, no folder
+    kept = tmp_path / "kept.checkpoint"
+    kept.write_bytes(saved.read_bytes())
+    folder = run_compose(compose, directory=cut, animation=False, resume=cut)
+    assert not saved.exists()
+    for name in ("best_transitions.json", "history.csv", "best_controller.json"):
+        assert (folder / name).read_text() == (whole / name).read_text(), name
+
+    other = parse_compose_config(
+        compose_raw(components, search={**search, "rounds": 4}), name="duo"
+    )
+    with pytest.raises(ConfigError, match="another config"):
+        run_compose(other, directory=tmp_path / "other", animation=False, resume=kept)
+    assert not (tmp_path / "other").exists()

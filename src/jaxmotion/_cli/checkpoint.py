@@ -49,9 +49,10 @@ def _versions() -> dict[str, str]:
     }
 
 
-def _search_config(experiment: Experiment) -> dict[str, Any]:
+def _search_config(experiment) -> dict[str, Any]:
     """What a checkpoint must share with the run that resumes it: the whole resolved config
-    but `[output]` (where and what to write does not change the search)."""
+    (of an `Experiment` or a compose run's `ComposeConfig`) but `[output]` (where and what
+    to write does not change the search)."""
     return json.loads(
         json.dumps({k: v for k, v in experiment.config.items() if k != "output"}, sort_keys=True)
     )
@@ -159,11 +160,16 @@ def save_checkpoint(path: Path, experiment: Experiment, searches) -> None:
         data, part = state_to_bytes(state, history)
         parts.append({"algorithm": search.search["algorithm"], **part})
         payload += data
+    _write(path, experiment.name, _search_config(experiment), parts, payload)
+
+
+def _write(path: Path, name: str, config: dict[str, Any], parts: list, payload: bytes) -> None:
+    """The checkpoint file (header, then payload), written atomically."""
     header = {
         "format": FORMAT,
         **_versions(),
-        "name": experiment.name,
-        "config": _search_config(experiment),
+        "name": name,
+        "config": config,
         "saved": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "searches": parts,
         "payload_bytes": len(payload),
@@ -213,20 +219,7 @@ def load_checkpoint(path: Path, experiment: Experiment) -> list[tuple[Any, Any]]
     config, of another jaxmotion version or checkpoint format, or that does not fit the
     search's state."""
     header, payload = read_header(path)
-    if header.get("format") != FORMAT or header.get("jaxmotion") != version("jaxmotion"):
-        raise ConfigError(
-            f"--resume {path}: written by jaxmotion {header.get('jaxmotion')!r} (checkpoint "
-            f"format {header.get('format')!r}); allowed: a checkpoint of this version "
-            f"({version('jaxmotion')}, format {FORMAT})"
-        )
-    mine = _search_config(experiment)
-    if header.get("config") != mine:
-        theirs = header.get("config") if isinstance(header.get("config"), dict) else {}
-        differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
-        raise ConfigError(
-            f"--resume {path}: a checkpoint of another config (differs in: "
-            f"{', '.join(differ)}); allowed: a checkpoint of this very config and options"
-        )
+    _check_identity(path, header, _search_config(experiment))
     try:
         out, start = [], 0
         for part, search in zip(header["searches"], _searches(experiment), strict=False):
@@ -238,6 +231,50 @@ def load_checkpoint(path: Path, experiment: Experiment) -> list[tuple[Any, Any]]
     except (KeyError, TypeError, ValueError, RuntimeError, OSError, StopIteration) as e:
         raise ConfigError(
             f"--resume {path}: its contents do not fit this config's search ({e})"
+        ) from None
+
+
+def _check_identity(path: Path, header: dict[str, Any], mine: dict[str, Any]) -> None:
+    """Refuse a checkpoint of another format, jaxmotion version or config (`ConfigError`)."""
+    if header.get("format") != FORMAT or header.get("jaxmotion") != version("jaxmotion"):
+        raise ConfigError(
+            f"--resume {path}: written by jaxmotion {header.get('jaxmotion')!r} (checkpoint "
+            f"format {header.get('format')!r}); allowed: a checkpoint of this version "
+            f"({version('jaxmotion')}, format {FORMAT})"
+        )
+    if header.get("config") != mine:
+        theirs = header.get("config") if isinstance(header.get("config"), dict) else {}
+        differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+        raise ConfigError(
+            f"--resume {path}: a checkpoint of another config (differs in: "
+            f"{', '.join(differ)}); allowed: a checkpoint of this very config and options"
+        )
+
+
+def save_transitions_checkpoint(path: Path, compose, state, history) -> None:
+    """Write a compose run's transition search (`compose`: its `ComposeConfig`; its state
+    and history so far) to `path` atomically, in the format of a run's checkpoint."""
+    data, part = state_to_bytes(state, history)
+    parts = [{"algorithm": "transition_search", **part}]
+    _write(path, compose.name, _search_config(compose), parts, data)
+
+
+def load_transitions_checkpoint(path: Path, compose, searcher):
+    """The `(state, history)` of a compose run's checkpoint (`searcher`: its
+    `TransitionSearch`, whose `template` describes the state).
+
+    **Raises:** `ConfigError` as `load_checkpoint` does."""
+    header, payload = read_header(path)
+    _check_identity(path, header, _search_config(compose))
+    try:
+        (part,) = header["searches"]
+        if part["algorithm"] != "transition_search" or part["bytes"] != len(payload):
+            raise ValueError(f"a {part['algorithm']} search")
+        template = searcher.template(compose.composite)
+        return state_from_bytes(template, part, payload, None)
+    except (KeyError, TypeError, ValueError, RuntimeError, OSError) as e:
+        raise ConfigError(
+            f"--resume {path}: its contents do not fit this composite's search ({e})"
         ) from None
 
 

@@ -18,6 +18,8 @@ import tomli_w
 
 from .._composite import Composite
 from .._objective.script import Script, ScriptError
+from .._search.protocol import drive
+from .._search.transitions import TransitionSearch
 from .._sim.trajectory import Trajectory
 from .config import (
     OUTPUT,
@@ -402,6 +404,9 @@ def run_compose(
     directory: str | Path | None = None,
     animation: bool | None = None,
     report: Callable[[str], None] | None = None,
+    checkpoint_every: float | None = None,
+    resume: str | Path | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> Path:
     """Search the transitions of a composite and write its results folder
     `<directory>/<name>-<timestamp>/`: `config.toml` (resolved), `best_controller.json` (the
@@ -409,26 +414,78 @@ def run_compose(
     `learning_plot.png` of the search, `motion.gif` of the best composite (unless
     `animation` is off) and `summary.json` (the start, the equally spaced default and the
     best: fitness, the script's values, each phase's measures and its component's check;
-    the search's wall time). Written whole or not at all."""
+    the search's wall time). Written whole or not at all.
+
+    **Checkpoints**, as `run_experiment`'s: with `checkpoint_every` (seconds) the transition
+    search's state and history are saved to `<directory>/<name>-<time>.checkpoint` that often
+    (after a mutation step) and on an interrupt (`KeyboardInterrupt`, or `stop()` true after
+    a step), which then raises `Interrupted` naming the file; `resume` (the file, or the
+    directory holding it) continues the search to the uninterrupted result, bitwise.
+
+    **Raises:** `ConfigError` for a checkpoint that is truncated, of another config or
+    version; `Interrupted`."""
     from ..viz import animate, learning_plot
-    from .results import _json_number, controller_to_dict, new_folder, write_history_csv
+    from .checkpoint import (
+        SUFFIX,
+        Progress,
+        find_checkpoint,
+        load_transitions_checkpoint,
+        save_transitions_checkpoint,
+    )
+    from .results import (
+        Interrupted,
+        _json_number,
+        controller_to_dict,
+        new_folder,
+        write_history_csv,
+    )
 
     say = report or (lambda _: None)
     out_root = Path(directory if directory is not None else compose.output["directory"])
     want_animation = compose.output["animation"] if animation is None else animation
+    composite, s = compose.composite, compose.search
+    equal = composite.equally_spaced()
+    start = compose.initial if s["start"] == "ticks" else equal
+    searcher = TransitionSearch(
+        composite.duration,
+        num_arrays=s["arrays"],
+        mutations=s["mutations"],
+        tick=composite.tick,
+        initial=start,
+    )
+    resumed, source = None, None
+    if resume is not None:
+        source = find_checkpoint(Path(resume), compose)
+        resumed = load_transitions_checkpoint(source, compose, searcher)
     final, tmp = new_folder(out_root, compose.name)
+    path = source if source is not None else out_root / f"{final.name}{SUFFIX}"
+    progress, saved = Progress(), [False, time.monotonic()]
+    if resumed is not None:
+        progress.record(*resumed)
+
+    def save():
+        if progress.latest is not None:
+            state, count = progress.latest
+            save_transitions_checkpoint(path, compose, state, progress.history(count))
+            saved[:] = [True, time.monotonic()]
+
+    def record(state, part):
+        progress.record(state, part)
+        if stop is not None and stop():
+            raise KeyboardInterrupt  # between two steps: saved below
+        if checkpoint_every is not None and time.monotonic() - saved[1] >= checkpoint_every:
+            save()
+
     try:
-        composite, s = compose.composite, compose.search
-        equal = composite.equally_spaced()
-        start = compose.initial if s["start"] == "ticks" else equal
         say(f"searching transitions from {np.round(start, 6).tolist()} s")
         began = time.perf_counter()
-        result = composite.search(
+        result = drive(
+            searcher,
+            composite,
             key=jr.key(compose.seed),
-            initial=start,
-            num_arrays=s["arrays"],
-            rounds=s["rounds"],
-            mutations=s["mutations"],
+            steps=s["rounds"] * s["mutations"],
+            callback=record,
+            **({} if resumed is None else {"state": resumed[0], "history": resumed[1]}),
         )
         search_s = time.perf_counter() - began
         best = np.asarray(result.best)
@@ -459,9 +516,16 @@ def run_compose(
             animate(trajectory, composite.body, fps=compose.output["fps"]).save(tmp / "motion.gif")
         (tmp / "config.toml").write_text(tomli_w.dumps(compose.config))
         os.replace(tmp, final)
+    except KeyboardInterrupt:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if checkpoint_every is None and resumed is None:
+            raise
+        save()
+        raise Interrupted(path if saved[0] else None) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    path.unlink(missing_ok=True)
     say(
         f"best fitness {result.best_fitness:.4g} (equally spaced "
         f"{summary['equally_spaced']['fitness']}), {search_s:.1f} s"

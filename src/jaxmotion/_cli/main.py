@@ -1,6 +1,7 @@
 """`python -m jaxmotion`: run experiments from TOML configs."""
 
 import argparse
+import contextlib
 import json
 import math
 import signal
@@ -71,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
             help="override a config key, e.g. --set search.evaluations=2000 (a TOML value; "
             "repeat for several keys)",
         )
+        checkpoint_options(q)
+
+    def checkpoint_options(q):
         q.add_argument(
             "--checkpoint-every",
             type=float,
@@ -182,6 +186,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     compose.add_argument("--no-animation", action="store_true", help="do not write motion.gif")
     compose.add_argument("--quiet", action="store_true", help="no progress or summary")
+    checkpoint_options(compose)
     gallery = sub.add_parser(
         "gallery",
         help="one HTML page of results folders: motions, learning plots, checks, figures",
@@ -321,12 +326,16 @@ def _compose(args) -> int:
         from dataclasses import replace
 
         compose = replace(compose, seed=args.seed, config={**compose.config, "seed": args.seed})
-    folder = run_compose(
-        compose,
-        directory=args.out,
-        animation=False if args.no_animation else None,
-        report=say,
-    )
+    with _stop_on_signals() as stop:
+        folder = run_compose(
+            compose,
+            directory=args.out,
+            animation=False if args.no_animation else None,
+            report=say,
+            checkpoint_every=args.checkpoint_every,
+            resume=args.resume,
+            stop=stop,
+        )
     if not args.quiet:
         summary = json.loads((folder / "summary.json").read_text())
         print(json.dumps({k: summary[k] for k in ("best", "equally_spaced")}, indent=2))
@@ -438,6 +447,30 @@ def _load(path: Path, args):
         raise ConfigError(f"{path}: {e}" + (f" (with --set {given})" if given else "")) from None
 
 
+@contextlib.contextmanager
+def _stop_on_signals():
+    """Ctrl-C and SIGTERM (a scheduler's stop) ask the search to stop after its current
+    step, with a checkpoint; a second one stops at once. (A KeyboardInterrupt raised wherever
+    the signal lands can be swallowed, e.g. inside a garbage-collection callback.) Yields
+    the `stop()` question the search asks after every step."""
+    stop = threading.Event()
+    handled = (signal.SIGINT, signal.SIGTERM)
+    previous = {}
+
+    def request(signum, frame):
+        del frame
+        stop.set()
+        signal.signal(signum, _terminate)
+
+    if threading.current_thread() is threading.main_thread():
+        previous = {s: signal.signal(s, request) for s in handled}
+    try:
+        yield stop.is_set
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
 def _run(path: Path, args) -> int:
     experiment = _load(path, args)
     from .config import search_plan
@@ -451,22 +484,7 @@ def _run(path: Path, args) -> int:
         else:
             plan = search_plan(experiment.search)
         say(f"jaxmotion: {experiment.name}: {plan}, seed {experiment.seed}")
-    # Ctrl-C and SIGTERM (a scheduler's stop) ask the search to stop after its current step,
-    # with a checkpoint; a second one stops at once. (A KeyboardInterrupt raised wherever the
-    # signal lands can be swallowed, e.g. inside a garbage-collection callback.)
-    stop = threading.Event()
-    handled = (signal.SIGINT, signal.SIGTERM)
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = {}
-
-    def request(signum, frame):
-        del frame
-        stop.set()
-        signal.signal(signum, _terminate)
-
-    if main_thread:
-        previous = {s: signal.signal(s, request) for s in handled}
-    try:
+    with _stop_on_signals() as stop:
         folder = run_experiment(
             experiment,
             directory=args.out,
@@ -475,11 +493,8 @@ def _run(path: Path, args) -> int:
             report=say,
             checkpoint_every=args.checkpoint_every,
             resume=args.resume,
-            stop=stop.is_set,
+            stop=stop,
         )
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
     if experiment.stages:
         if say is not None:
             summary = json.loads((folder / "summary.json").read_text())
@@ -885,7 +900,7 @@ def main(argv: list[str] | None = None) -> int:
             config = getattr(args, "config", None) or default_config_path()
             print(
                 f"the search so far is saved in {saved}; continue it with:\n"
-                f"  python -m jaxmotion run {config} --resume {saved}",
+                f"  python -m jaxmotion {args.command} {config} --resume {saved}",
                 file=sys.stderr,
             )
         return 130
