@@ -216,6 +216,12 @@ def test_the_driver_is_init_then_steps():
     result = transition_search(evaluate, DURATION, key=jr.key(8), num_transitions=3, rounds=2)
     search = TransitionSearch(DURATION, num_transitions=3)
     state, _ = search.init(evaluate, key=jr.key(8))
+    # init = first, the evaluation, begin; first and begin are pure (jitted whole alike).
+    transitions, carry = eqx.filter_jit(search.first)(evaluate, key=jr.key(8))
+    fitness = jnp.asarray(evaluate(transitions), dtype=transitions.dtype)
+    begun = eqx.filter_jit(search.begin)(evaluate, carry, transitions, fitness)
+    np.testing.assert_array_equal(np.asarray(begun.transitions), np.asarray(state.transitions))
+    np.testing.assert_array_equal(np.asarray(begun.fitness), np.asarray(state.fitness))
     for _ in range(2 * H):
         state, _ = search.step(evaluate, state)
     assert search.steps_done(state) == 2 * H

@@ -124,10 +124,19 @@ class Evolve(AbstractSearcher):
     def init(self, task: Task, *, key: PRNGKeyArray) -> tuple[EvolveState, Float[Array, " size"]]:
         """Draw and evaluate the first generation. Returns the state and the fitness of the
         controllers in the order they were drawn."""
-        population, next_key = _sample(self, task, key)
+        population, next_key = self.first(task, key=key)
         starts = _start_key(task, next_key)
         fitness = task.evaluate(population, chunk=self.chunk, key=starts)
-        return _first(population, fitness, next_key), fitness
+        return self.begin(task, next_key, population, fitness), fitness
+
+    def first(self, task: Task, *, key: PRNGKeyArray) -> tuple[AbstractController, PRNGKeyArray]:
+        """The `size` random controllers of the first generation and the state's key."""
+        return _sample(self, task, key)
+
+    def begin(self, task: Task, carry, candidates, fitness) -> EvolveState:
+        """The first generation ranked by fitness (stably), every member new."""
+        del task
+        return _first(candidates, fitness, carry)
 
     def pin(self, state: EvolveState, indices: Sequence[int] | Int[ArrayLike, " k"]) -> EvolveState:
         """The state with the members `indices` (into `state.population`) moved to the front

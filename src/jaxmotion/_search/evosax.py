@@ -181,9 +181,18 @@ class Evosax(AbstractSearcher):
     def init(self, task: Task, *, key: PRNGKeyArray) -> tuple[EvosaxState, Float[Array, " size"]]:
         """Draw and evaluate the random set (in calls of `population`, the steps' width);
         returns the state and their fitness in the order drawn."""
-        population, next_key = _sample(self, task, key)
+        population, next_key = self.first(task, key=key)
         fitness = task.evaluate(population, chunk=self.population, key=_start_key(task, next_key))
-        return _start(self, task, population, fitness, next_key), fitness
+        return self.begin(task, next_key, population, fitness), fitness
+
+    def first(self, task: Task, *, key: PRNGKeyArray) -> tuple[AbstractController, PRNGKeyArray]:
+        """The `size` random controllers of the random set and the state's key."""
+        return _sample(self, task, key)
+
+    def begin(self, task: Task, carry, candidates, fitness) -> EvosaxState:
+        """The strategy started at the best of the random set (its discrete parts held from
+        it, the scale of each parameter from the set's spread)."""
+        return _start(self, task, candidates, fitness, carry)
 
     def ask(self, task: Task, state: EvosaxState) -> AbstractController:
         """The generation's `population` candidates (the strategy's vectors as controllers,

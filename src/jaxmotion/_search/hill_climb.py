@@ -69,11 +69,20 @@ class ParallelHillClimb(AbstractSearcher):
     ) -> tuple[HillClimbState, Float[Array, " size"]]:
         """Draw and evaluate the initial search set. Returns the state and the fitness of
         the initial controllers in the order they were drawn."""
-        population, next_key = _sample(self, task, key)
+        population, next_key = self.first(task, key=key)
         # In calls of the search's batch size, so that the steps reuse this compilation.
         starts = _start_key(task, next_key)
         fitness = task.evaluate(population, chunk=self.batch, key=starts)
-        return _rank(population, fitness, next_key), fitness
+        return self.begin(task, next_key, population, fitness), fitness
+
+    def first(self, task: Task, *, key: PRNGKeyArray) -> tuple[AbstractController, PRNGKeyArray]:
+        """The `size` random controllers of the initial set and the state's key."""
+        return _sample(self, task, key)
+
+    def begin(self, task: Task, carry, candidates, fitness) -> HillClimbState:
+        """The initial set ranked by fitness (stably)."""
+        del task
+        return _rank(candidates, fitness, carry)
 
     def ask(self, task: Task, state: HillClimbState) -> AbstractController:
         """The `batch` perturbed copies of randomly drawn members to evaluate next."""

@@ -6,7 +6,11 @@ functions on a state pytree that holds everything a resume needs:
 
 - `init(task, *, key) -> (state, initial)`: draw the first candidates, evaluate them
     (`task.evaluate`, compiled with the shape the steps reuse) and return the state and the
-    initial fitness, `(rounds, runs, n)`;
+    initial fitness, `(rounds, runs, n)`. It is `first` (pure, jittable: the candidates and
+    what `begin` needs besides their fitness), the evaluation, then `begin` (pure,
+    jittable: the state), so a caller with an evaluation of its own can run a whole search
+    from pure functions; the evaluation itself is outside them because `task.evaluate` is
+    a compiled, sharded call of its own (serial search then makes its `enrich` rounds);
 - `ask(task, state) -> candidates`: what to evaluate next (jitted, pure);
 - `evaluate(task, state, candidates) -> (fitness, extras)`: the driver's one call to the
     simulator per step (the searcher chooses the random starts of a robust task, the chunking,
@@ -91,6 +95,16 @@ class AbstractSearcher(eqx.Module):
     def init(self, task: Task, *, key: PRNGKeyArray) -> tuple[Any, Float[Array, "..."]]:
         """Draw and evaluate the first candidates: the state and their fitness, in the order
         evaluated (reshaped by the driver to `(rounds, runs, n)`)."""
+
+    @abc.abstractmethod
+    def first(self, task: Task, *, key: PRNGKeyArray) -> tuple[Any, Any]:
+        """The first candidates to evaluate (along a leading axis) and the `carry` that
+        `begin` takes besides their fitness. Pure and jittable."""
+
+    @abc.abstractmethod
+    def begin(self, task: Task, carry, candidates, fitness, **extras):
+        """The state after the first candidates were evaluated (`fitness` maximised, NaN
+        and `-inf` worst; `extras` as `evaluate` gives them). Pure and jittable."""
 
     @abc.abstractmethod
     def ask(self, task: Task, state) -> AbstractController:

@@ -4,7 +4,7 @@ generations."""
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -164,7 +164,7 @@ class SerialSearch(AbstractSearcher):
         population, keys = _sample(task, key, jnp.arange(seeds) + seed_offset, self.climbers)
         starts = _start_keys(task, keys, self.climbers, 0, 0)
         fitness, motion = _evaluate(task, population, starts)
-        state = _start(population, fitness, keys, motion)
+        state = self.begin(task, keys, population, fitness, motion=motion)
         rounds = [state.fitness]
         for k in range(self.enrich):
             candidates = _enriched(task, state, k)
@@ -173,6 +173,18 @@ class SerialSearch(AbstractSearcher):
             state = _replace(state, candidates, fitness, motion)
             rounds.append(state.fitness)
         return state, jnp.stack(rounds)
+
+    def first(self, task: Task, *, key: PRNGKeyArray) -> tuple[AbstractController, Any]:
+        """The random climbers of every seed (seed-major along one axis) and each seed's
+        key."""
+        seeds = jnp.arange(self.seeds) + self.seed_offset
+        return _sample(task, key, seeds, self.climbers)
+
+    def begin(self, task: Task, carry, candidates, fitness, motion=None) -> SerialSearchState:
+        """The climbers of each seed with their fitness (and their motion, for a family
+        whose mutation uses it); the `enrich` rounds come after, in `init`."""
+        del task
+        return _start(candidates, fitness, carry, motion)
 
     def ask(self, task: Task, state: SerialSearchState) -> AbstractController:
         """This generation's mutant of every climber: `seeds * climbers` controllers along

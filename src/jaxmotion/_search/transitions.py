@@ -13,7 +13,7 @@ import math
 import numbers
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -254,20 +254,29 @@ class TransitionSearch(AbstractSearcher):
         **Returns:** the state and the fitness of the starting set (NaN as `-inf`).
         """
         evaluate = _evaluator(task)
+        transitions, key = self.first(task, key=key)
+        fitness = _evaluated(evaluate, transitions, self.num_arrays)
+        return self.begin(task, key, transitions, fitness), fitness
+
+    def first(self, task, *, key: PRNGKeyArray) -> tuple[Float[Array, "arrays transitions"], Any]:
+        """`num_arrays` copies of the starting array (on the tick grid), and the key."""
         dtype = jnp.result_type(float)
         duration, tick, _ = self._settings(dtype)
         start = jnp.asarray(self._start(task), dtype=dtype)
-        transitions = _population(start, self.num_arrays, duration, tick)
-        fitness = _evaluated(evaluate, transitions, self.num_arrays)
-        state = TransitionSearchState(
-            transitions=transitions,
-            fitness=fitness,
-            key=key,
+        return _population(start, self.num_arrays, duration, tick), key
+
+    def begin(self, task, carry, candidates, fitness) -> TransitionSearchState:
+        """The set with its fitness (NaN as `-inf`), at round 0."""
+        del task
+        fitness = jnp.asarray(fitness, dtype=candidates.dtype)
+        return TransitionSearchState(
+            transitions=candidates,
+            fitness=jnp.where(jnp.isnan(fitness), -jnp.inf, fitness),
+            key=carry,
             round=jnp.asarray(0, dtype=jnp.int32),
             mutation=jnp.asarray(0, dtype=jnp.int32),
             evaluations=jnp.asarray(self.num_arrays, dtype=jnp.int32),
         )
-        return state, fitness
 
     def ask(self, task, state: TransitionSearchState) -> Float[Array, "arrays transitions"]:
         """This mutation step's mutant of every array, `(arrays, transitions)`, ready for
