@@ -251,9 +251,11 @@ def _check_identity(path: Path, header: dict[str, Any], mine: dict[str, Any]) ->
         )
 
 
-def save_transitions_checkpoint(path: Path, compose, state, history) -> None:
-    """Write a compose run's transition search (`compose`: its `ComposeConfig`; its state
-    and history so far) to `path` atomically, in the format of a run's checkpoint."""
+def save_transitions_checkpoint(path: Path, compose, searches) -> None:
+    """Write a compose run's transition search (`compose`: its `ComposeConfig`; `searches`:
+    its one `(state, history)` so far) to `path` atomically, in the format of a run's
+    checkpoint."""
+    ((state, history),) = searches
     data, part = state_to_bytes(state, history)
     parts = [{"algorithm": "transition_search", **part}]
     _write(path, compose.name, _search_config(compose), parts, data)

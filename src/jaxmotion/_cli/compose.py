@@ -427,13 +427,13 @@ def run_compose(
     from ..viz import animate, learning_plot
     from .checkpoint import (
         SUFFIX,
-        Progress,
         find_checkpoint,
         load_transitions_checkpoint,
         save_transitions_checkpoint,
     )
     from .results import (
         Interrupted,
+        _Checkpoints,
         _json_number,
         controller_to_dict,
         new_folder,
@@ -458,23 +458,14 @@ def run_compose(
         source = find_checkpoint(Path(resume), compose)
         resumed = load_transitions_checkpoint(source, compose, searcher)
     final, tmp = new_folder(out_root, compose.name)
-    path = source if source is not None else out_root / f"{final.name}{SUFFIX}"
-    progress, saved = Progress(), [False, time.monotonic()]
-    if resumed is not None:
-        progress.record(*resumed)
-
-    def save():
-        if progress.latest is not None:
-            state, count = progress.latest
-            save_transitions_checkpoint(path, compose, state, progress.history(count))
-            saved[:] = [True, time.monotonic()]
-
-    def record(state, part):
-        progress.record(state, part)
-        if stop is not None and stop():
-            raise KeyboardInterrupt  # between two steps: saved below
-        if checkpoint_every is not None and time.monotonic() - saved[1] >= checkpoint_every:
-            save()
+    checkpoints = None
+    if checkpoint_every is not None or resumed is not None:
+        path = source if source is not None else out_root / f"{final.name}{SUFFIX}"
+        resumed = None if resumed is None else [resumed]
+        write = save_transitions_checkpoint
+        checkpoints = _Checkpoints(path, compose, checkpoint_every, resumed, stop, write)
+        checkpoints.begin()
+        resumed = checkpoints.resumed
 
     try:
         say(f"searching transitions from {np.round(start, 6).tolist()} s")
@@ -484,7 +475,7 @@ def run_compose(
             composite,
             key=jr.key(compose.seed),
             steps=s["rounds"] * s["mutations"],
-            callback=record,
+            callback=checkpoints,
             **({} if resumed is None else {"state": resumed[0], "history": resumed[1]}),
         )
         search_s = time.perf_counter() - began
@@ -518,14 +509,15 @@ def run_compose(
         os.replace(tmp, final)
     except KeyboardInterrupt:
         shutil.rmtree(tmp, ignore_errors=True)
-        if checkpoint_every is None and resumed is None:
+        if checkpoints is None:
             raise
-        save()
-        raise Interrupted(path if saved[0] else None) from None
+        checkpoints.save()
+        raise Interrupted(checkpoints.path if checkpoints.saved else None) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    path.unlink(missing_ok=True)
+    if checkpoints is not None:
+        checkpoints.path.unlink(missing_ok=True)
     say(
         f"best fitness {result.best_fitness:.4g} (equally spaced "
         f"{summary['equally_spaced']['fitness']}), {search_s:.1f} s"

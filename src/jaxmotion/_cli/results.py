@@ -211,7 +211,9 @@ class _Checkpoints:
     search in progress (`Progress`), and the searches so far (a multi-stage run's finished
     stages, then the one in progress) are saved to `path` every `every` seconds and on
     demand (an interrupt). `resumed`: the `(state, history)` of each search a checkpoint
-    holds; `begin` hands the next one to its search."""
+    holds; `begin` hands the next one to its search. `write(path, experiment, searches)`
+    writes the file (`save_checkpoint`; a compose run's transition search passes its own
+    writer and its `ComposeConfig` as `experiment`)."""
 
     def __init__(
         self,
@@ -220,8 +222,10 @@ class _Checkpoints:
         every: float | None,
         resumed: list | None = None,
         stop: Callable[[], bool] | None = None,
+        write: Callable[[Path, Any, list], None] = save_checkpoint,
     ):
         self.path, self.experiment, self.every, self.stop = path, experiment, every, stop
+        self.write = write
         self.pending = list(resumed or [])
         self.done: list[tuple[Any, Any]] = []
         self.progress: Progress | None = None
@@ -229,14 +233,14 @@ class _Checkpoints:
         self.last = time.monotonic()
         self.saved = False
 
-    def begin(self, search: Experiment) -> None:
-        """Start recording the next search (`search`: the single-search experiment it runs);
-        `resumed` is then its state and history from the checkpoint, if it holds them."""
+    def begin(self, seeds: int | None = None) -> None:
+        """Start recording the next search (`seeds`: its number of per-run histories, None
+        for one; `_seeds(experiment)`); `resumed` is then its state and history from the
+        checkpoint, if it holds them."""
         if self.progress is not None and self.progress.latest is not None:
             state, count = self.progress.latest
             self.done.append((state, self.progress.history(count)))
-        per_run = SEARCHERS[search.search["algorithm"]].per_run
-        self.progress = Progress(seeds=search.search["runs"] if per_run else None)
+        self.progress = Progress(seeds=seeds)
         self.resumed = self.pending.pop(0) if self.pending else None
         if self.resumed is not None:
             self.progress.record(*self.resumed)
@@ -256,9 +260,15 @@ class _Checkpoints:
             searches.append((state, self.progress.history(count)))
         if not searches:
             return
-        save_checkpoint(self.path, self.experiment, searches)
+        self.write(self.path, self.experiment, searches)
         self.last = time.monotonic()
         self.saved = True
+
+
+def _seeds(search: Experiment) -> int | None:
+    """How many histories a single search's checkpoint records: one per run for a per-run
+    searcher (serial search), else None (one)."""
+    return search.search["runs"] if SEARCHERS[search.search["algorithm"]].per_run else None
 
 
 def _run_search(
@@ -510,7 +520,7 @@ def run_experiment(
         else:
             started = time.perf_counter()
             if checkpoints is not None:
-                checkpoints.begin(experiment)
+                checkpoints.begin(_seeds(experiment))
             _search_and_write(experiment, tmp, progress, want_animation, started, checkpoints)
             (tmp / "config.toml").write_text(tomli_w.dumps(experiment.config))
         os.replace(tmp, final)
@@ -684,7 +694,7 @@ def _run_stages(
         sub = folder / stage_folder(number, stage.name)
         sub.mkdir()
         if checkpoints is not None:
-            checkpoints.begin(stage)
+            checkpoints.begin(_seeds(stage))
         summary, trajectory = _search_and_write(
             stage,
             sub,

@@ -333,17 +333,10 @@ class TransitionSearch(AbstractSearcher):
         return state.transitions[best], float(fitness[best])
 
     def template(self, task) -> TransitionSearchState:
-        """The state's structure and shapes (zeros), evaluating nothing."""
+        """The state's structure and shapes (`begin` of zeros), evaluating nothing."""
         dtype = jnp.result_type(float)
-        n = len(self._start(task))
-        return TransitionSearchState(
-            transitions=jnp.zeros((self.num_arrays, n), dtype),
-            fitness=jnp.zeros(self.num_arrays, dtype),
-            key=jr.key(0),
-            round=jnp.asarray(0, dtype=jnp.int32),
-            mutation=jnp.asarray(0, dtype=jnp.int32),
-            evaluations=jnp.asarray(0, dtype=jnp.int32),
-        )
+        transitions = jnp.zeros((self.num_arrays, len(self._start(task))), dtype)
+        return self.begin(task, jr.key(0), transitions, jnp.zeros(self.num_arrays, dtype))
 
     def check_resume(self, state: TransitionSearchState, history) -> None:
         self._check_state(state)
