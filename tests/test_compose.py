@@ -2,6 +2,7 @@
 transitions searched; the config checked before anything runs; the results folder."""
 
 import json
+import shutil
 import tomllib
 
 import numpy as np
@@ -252,13 +253,16 @@ def test_a_component_run_first_is_recorded_by_its_results_folder(components):
 def test_an_interrupted_transition_search_resumes_to_the_uninterrupted_result(components, tmp_path):
     """Stopped after its third mutation step, the compose run saves its transition search
     and writes no folder; resumed, it finishes with the uninterrupted run's transitions and
-    history, bitwise, and removes the checkpoint. A checkpoint of another compose config is
-    refused before anything runs."""
+    history, bitwise, and removes the checkpoint. A checkpoint of another compose config, or
+    of the same config after a component's results folder was rewritten, is refused before
+    anything runs."""
     from jaxmotion._cli.compose import run_compose
     from jaxmotion._cli.results import Interrupted
 
     search = {"arrays": 4, "rounds": 3, "mutations": 2}
-    compose = parse_compose_config(compose_raw(components, search=search), name="duo")
+    roll = tmp_path / "roll"  # a component folder of this test's own, rewritten below
+    shutil.copytree(components[1], roll)
+    compose = parse_compose_config(compose_raw([components[0], roll], search=search), name="duo")
     whole = run_compose(compose, directory=tmp_path / "whole", animation=False)
     asked = []
 
@@ -279,8 +283,15 @@ def test_an_interrupted_transition_search_resumes_to_the_uninterrupted_result(co
         assert (folder / name).read_text() == (whole / name).read_text(), name
 
     other = parse_compose_config(
-        compose_raw(components, search={**search, "rounds": 4}), name="duo"
+        compose_raw([components[0], roll], search={**search, "rounds": 4}), name="duo"
     )
     with pytest.raises(ConfigError, match="another config"):
         run_compose(other, directory=tmp_path / "other", animation=False, resume=kept)
+    assert not (tmp_path / "other").exists()
+
+    # The same config, but the roll's folder now holds another controller.
+    shutil.copy(components[0] / "best_controller.json", roll / "best_controller.json")
+    rewritten = parse_compose_config(compose_raw([components[0], roll], search=search), name="duo")
+    with pytest.raises(ConfigError, match="differs in: component_controllers"):
+        run_compose(rewritten, directory=tmp_path / "other", animation=False, resume=kept)
     assert not (tmp_path / "other").exists()

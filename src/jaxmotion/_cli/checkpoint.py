@@ -258,7 +258,22 @@ def save_transitions_checkpoint(path: Path, compose, searches) -> None:
     ((state, history),) = searches
     data, part = state_to_bytes(state, history)
     parts = [{"algorithm": "transition_search", **part}]
-    _write(path, compose.name, _search_config(compose), parts, data)
+    _write(path, compose.name, _compose_identity(compose), parts, data)
+
+
+def _compose_identity(compose) -> dict[str, Any]:
+    """What a compose checkpoint must share with the run that resumes it: its config and
+    its components' controllers (a digest of each, in order), so that a component's
+    results folder rewritten between the stop and the resume is noticed even though the
+    config, which names the folder, is unchanged."""
+    from .results import controller_to_dict
+
+    def digest(controller) -> str:
+        text = json.dumps(controller_to_dict(controller), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    controllers = [digest(controller) for _, _, controller in compose.phases]
+    return {**_search_config(compose), "component_controllers": controllers}
 
 
 def load_transitions_checkpoint(path: Path, compose, searcher):
@@ -267,7 +282,7 @@ def load_transitions_checkpoint(path: Path, compose, searcher):
 
     **Raises:** `ConfigError` as `load_checkpoint` does."""
     header, payload = read_header(path)
-    _check_identity(path, header, _search_config(compose))
+    _check_identity(path, header, _compose_identity(compose))
     try:
         (part,) = header["searches"]
         if part["algorithm"] != "transition_search" or part["bytes"] != len(payload):
