@@ -55,7 +55,10 @@ def ours(batches: list[int], repeats: int) -> dict[int, float]:
             "--no-overhead",
             f"--json={out}",
         ]
-        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode != 0:
+            tail = "\n".join((done.stdout + done.stderr).splitlines()[-15:])
+            raise SystemExit(f"evaluate.py failed (exit code {done.returncode}):\n{tail}")
         rows = json.loads(out.read_text())["rows"]
     return {row["batch"]: row["evaluate"] for row in rows}
 
