@@ -132,6 +132,94 @@ def planar_chain_free_flight(
     """Free flight of the planar chain simulated by MuJoCo (RK4, float64), the hinges driven by
     the exact inverse-dynamics torque that realises the prescribed theta(t); see the module
     docstring for the conventions and the returned dict."""
+    return _mujoco_chain(
+        lengths,
+        masses,
+        radii,
+        lambda t, th, thd: np.asarray(theta_ddot(t), dtype=np.float64),
+        None,
+        theta0=theta(0.0),
+        theta_dot0=theta_dot(0.0),
+        root_angle0=root_angle0,
+        com0=com0,
+        com_velocity0=com_velocity0,
+        root_angular_velocity0=root_angular_velocity0,
+        gravity=gravity,
+        duration=duration,
+        dt=dt,
+        save_every=save_every,
+    )
+
+
+def planar_chain_torque_limited(
+    lengths,
+    masses,
+    radii,
+    target: ArrayFn,
+    tau: float,
+    max_torque,
+    *,
+    theta0,
+    theta_dot0,
+    root_angle0: float,
+    com0,
+    com_velocity0,
+    root_angular_velocity0: float,
+    gravity: float,
+    duration: float,
+    dt: float,
+    save_every: int = 1,
+) -> dict[str, np.ndarray]:
+    """Free flight of the planar chain simulated by MuJoCo with torque-limited hinges: at every
+    RK4 stage each hinge asks for the joint law's acceleration
+    `(target(t) - theta - 2 tau theta') / tau^2`, the inverse-dynamics torque that realises it
+    (root free) is clipped to `[-max_torque, max_torque]` and applied. The chain starts with
+    its joints at `theta0` moving at `theta_dot0`; otherwise as `planar_chain_free_flight`."""
+    max_torque = np.asarray(max_torque, dtype=np.float64)
+
+    def wanted(t, th, thd):
+        return (np.asarray(target(t), dtype=np.float64) - th - 2 * tau * thd) / tau**2
+
+    return _mujoco_chain(
+        lengths,
+        masses,
+        radii,
+        wanted,
+        max_torque,
+        theta0=theta0,
+        theta_dot0=theta_dot0,
+        root_angle0=root_angle0,
+        com0=com0,
+        com_velocity0=com_velocity0,
+        root_angular_velocity0=root_angular_velocity0,
+        gravity=gravity,
+        duration=duration,
+        dt=dt,
+        save_every=save_every,
+    )
+
+
+def _mujoco_chain(
+    lengths,
+    masses,
+    radii,
+    joint_acceleration: Callable[[float, np.ndarray, np.ndarray], np.ndarray],
+    max_torque: np.ndarray | None,
+    *,
+    theta0,
+    theta_dot0,
+    root_angle0: float,
+    com0,
+    com_velocity0,
+    root_angular_velocity0: float,
+    gravity: float,
+    duration: float,
+    dt: float,
+    save_every: int,
+) -> dict[str, np.ndarray]:
+    """MuJoCo's free flight of the chain whose hinges apply, at every RK4 stage, the
+    inverse-dynamics torque for `joint_acceleration(t, theta, theta')` (root free), clipped to
+    `max_torque` when it is given."""
     lengths, masses, radii = (np.asarray(a, dtype=np.float64) for a in (lengths, masses, radii))
     n = len(lengths)
     n_steps, saved = _steps(duration, dt, save_every)
@@ -142,15 +230,12 @@ def planar_chain_free_flight(
     root_body = model.body("rod0").id
     distal_sites = [model.site(f"distal{k}").id for k in range(n)]
 
-    def set_joints(t):
-        data.qpos[3:] = theta(t)
-        data.qvel[3:] = theta_dot(t)
-
     # Initial state: place the root so that the centre of mass is at com0 with velocity
     # com_velocity0 (the slides translate every point alike).
     data.qpos[:3] = (0.0, 0.0, root_angle0)
     data.qvel[:3] = (0.0, 0.0, root_angular_velocity0)
-    set_joints(0.0)
+    data.qpos[3:] = theta0
+    data.qvel[3:] = theta_dot0
     mujoco.mj_forward(model, data)
     mujoco.mj_subtreeVel(model, data)
     com0, com_velocity0 = np.asarray(com0, float), np.asarray(com_velocity0, float)
@@ -164,12 +249,13 @@ def planar_chain_free_flight(
         # data.time at the stage's time.
         _dense_mass_matrix(model_, data_, mass_matrix)
         bias = data_.qfrc_bias
-        a_joint = np.asarray(theta_ddot(data_.time), dtype=np.float64)
+        a_joint = joint_acceleration(data_.time, data_.qpos[3:].copy(), data_.qvel[3:].copy())
         a_root = -np.linalg.solve(mass_matrix[:3, :3], bias[:3] + mass_matrix[:3, 3:] @ a_joint)
+        torque = mass_matrix[3:, :3] @ a_root + mass_matrix[3:, 3:] @ a_joint + bias[3:]
+        if max_torque is not None:
+            torque = np.clip(torque, -max_torque, max_torque)
         data_.qfrc_applied[:3] = 0.0
-        data_.qfrc_applied[3:] = (
-            mass_matrix[3:, :3] @ a_root + mass_matrix[3:, 3:] @ a_joint + bias[3:]
-        )
+        data_.qfrc_applied[3:] = torque
 
     out = {
         "t": [],

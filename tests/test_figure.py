@@ -13,6 +13,7 @@ takes the world (gravity as an array), controller and start state as arguments, 
 of one figure share one compilation.
 """
 
+import math
 from types import SimpleNamespace
 
 import equinox as eqx
@@ -467,9 +468,9 @@ CHAIN = dict(duration=1.5, save_dt=0.01)
 MUJOCO_DT = 2e-3
 
 
-def chain():
+def chain(max_torque=None, limit=CHAIN_LIMIT):
     """A serial chain along +x: rod k joins nodes k and k + 1, a hinge about y per non-root
-    rod (the MuJoCo reference's model)."""
+    rod (the MuJoCo reference's model), its joints within (-limit, limit)."""
     x = np.concatenate([[0.0], np.cumsum(CHAIN_LENGTHS)])
     nodes = np.stack([x, np.zeros_like(x), np.zeros_like(x)], axis=1)
     return jm.Figure(
@@ -477,9 +478,10 @@ def chain():
         [(k, k + 1) for k in range(3)],
         masses=CHAIN_MASSES,
         radii=CHAIN_RADII,
-        joints=[Joint(k, Y_AXIS, -CHAIN_LIMIT, CHAIN_LIMIT) for k in (1, 2)],
+        joints=[Joint(k, Y_AXIS, -limit, limit) for k in (1, 2)],
         planar=True,
         name="chain",
+        max_torque=max_torque,
     )
 
 
@@ -598,6 +600,119 @@ def test_planar_chain_agrees_with_mujoco_and_the_numpy_reference(x64):
     # The root did turn, and not only at its initial rate (the joints moved it).
     turned = ours["root_angle"][-1] - s["root_angle"]
     assert abs(turned - s["spin"] * CHAIN["duration"]) > 0.1
+
+
+# Torque-limited joints.
+WIDE_LIMIT = 3.0  # rad: joint ranges no swing below reaches (MuJoCo's hinges have no stops)
+TORQUE_MUJOCO_TOL = 5e-5  # m and rad: vs MuJoCo (limp ~8e-11; clipped ~1.5e-5: RK4 at 2 ms
+# steps through the clip's kinks)
+MIN_CLIP_EFFECT = 0.05  # m: a clipped torque moves some node this far off the kinematic run (0.11)
+
+
+@pytest.mark.parametrize("max_torque", [0.0, 0.05])
+def test_torque_limited_chain_agrees_with_mujoco(max_torque, x64):
+    """Torque-limited hinges, free root, gravity, no floor: limp joints (0 N m) and joints
+    too weak for the swing the law asks for (0.05 N m: clipped most of the time) against
+    MuJoCo, whose hinges apply the inverse-dynamics torque of the same law clipped alike
+    (RK4 at 2 ms). With the torque clipped, the motion is far from the kinematic joints'."""
+    pytest.importorskip("mujoco")
+    import mujoco_reference
+
+    figure = chain(max_torque=max_torque, limit=WIDE_LIMIT)
+    controller = chain_motion()
+    tr = chain_run(figure, controller, chain_start(figure, controller), G)
+    tau = float(controller.tau)
+
+    def target(t):
+        return (
+            controller.angles(t)
+            + 2 * tau * controller.angle_rates(t)
+            + tau**2 * controller.accelerations(t)
+        )
+
+    s = CHAIN_START
+    reference = mujoco_reference.planar_chain_torque_limited(
+        CHAIN_LENGTHS,
+        CHAIN_MASSES,
+        CHAIN_RADII,
+        target,
+        tau,
+        max_torque,
+        theta0=controller.angles(0.0),
+        theta_dot0=controller.angle_rates(0.0),
+        root_angle0=s["root_angle"],
+        com0=s["com"],
+        com_velocity0=s["velocity"],
+        root_angular_velocity0=s["spin"],
+        gravity=G,
+        duration=CHAIN["duration"],
+        dt=MUJOCO_DT,
+        save_every=round(CHAIN["save_dt"] / MUJOCO_DT),
+    )
+    assert np.abs(reference["theta"]).max() < WIDE_LIMIT
+    np.testing.assert_allclose(reference["t"], np.asarray(tr.ts), atol=ROUNDING_TOL)
+    ours = dict(
+        root_angle=planar_root_angle(tr), com=np.asarray(tr.com), points=np.asarray(tr.points)
+    )
+    for key, value in ours.items():
+        np.testing.assert_allclose(
+            value, reference[key], rtol=0, atol=TORQUE_MUJOCO_TOL, err_msg=key
+        )
+    kinematic = chain(limit=WIDE_LIMIT)
+    free = chain_run(kinematic, controller, chain_start(kinematic, controller), G)
+    assert np.abs(ours["points"] - np.asarray(free.points)).max() > MIN_CLIP_EFFECT
+
+
+def test_a_torque_limit_never_reached_leaves_the_kinematic_joints(x64):
+    """With a limit far above any torque the law needs, the joints follow the law exactly
+    as kinematic joints do."""
+    controller = chain_motion()
+    runs = [
+        np.asarray(chain_run(f, controller, chain_start(f, controller), G).points)
+        for f in (chain(), chain(max_torque=1e6))
+    ]
+    np.testing.assert_allclose(runs[1], runs[0], rtol=0, atol=ROUNDING_TOL)
+
+
+HEAD_RAISED = math.radians(30.0)  # the snake's head starts this far above the floor
+STRENGTH_MARGIN = 0.1  # the joint is this much stronger or weaker than the weight needs
+MIN_HEAD_TURN = math.radians(5.0)  # rad: the head rises or sinks at least this (~15 degrees)
+
+
+@pytest.mark.parametrize(
+    ("strength", "rises"), [(1 + STRENGTH_MARGIN, True), (1 - STRENGTH_MARGIN, False)]
+)
+def test_a_joint_lifts_a_rod_lying_on_the_floor_only_with_the_torque_its_weight_needs(
+    strength, rises, x64
+):
+    """The snake lies on the floor with its head raised 30 degrees, its head joint pulling
+    it up with all it has (target 60 degrees). The floor carries the rest of the body (the
+    contact forces' generalised forces: uniform gravity exerts none about the centre of
+    mass), so the head joint holds the head's weight moment `m g (l / 2) cos 30` alone:
+    10% more torque lifts the head, 10% less lets it sink."""
+    snake = jm.figures.snake()
+    mass, length = snake.masses[1], snake.lengths[1]
+    moment = mass * G * length / 2 * math.cos(HEAD_RAISED)
+    figure = jm.figures.snake(max_torque=strength * moment)
+    lift = np.array([-2 * HEAD_RAISED, 0.0])  # a negative angle raises the head's tip
+    controller = PrescribedJoints(lift, np.zeros(2), np.ones(2), np.zeros(2), 0.05)
+    state = figure.state(angles=(-HEAD_RAISED, 0.0))
+    tr = _simulate(
+        figure,
+        controller,
+        on_floor(),
+        state,
+        duration=0.4,
+        solver="symplectic",
+        dt=5e-4,
+        save_dt=0.01,
+    )
+    points = np.asarray(tr.points)
+    head = points[:, 2] - points[:, 1]
+    elevation = np.arctan2(head[:, 2], head[:, 0])
+    turned = elevation[-1] - elevation[0]
+    assert abs(elevation[0] - HEAD_RAISED) < ROUNDING_TOL**0.5
+    assert (turned > MIN_HEAD_TURN) if rises else (turned < -MIN_HEAD_TURN)
 
 
 def brute_force_momentum(figure, angles, rates, w, eps=1e-6):
@@ -821,6 +936,15 @@ RODS = [(0, 1), (1, 2), (2, 3)]
         (
             dict(rods=[(0, 1), (2, 3), (1, 2)]),
             r"rod 1 = \(2, 3\) starts at node 2, which no earlier rod reaches",
+        ),
+        (dict(max_torque=1.0), r"max_torque = 1.0 on a 3D figure; allowed: None"),
+        (
+            dict(planar=True, joints=[Joint(1, Y_AXIS, -1, 1)], max_torque=[1.0, 2.0]),
+            r"Figure.max_torque = \[1.0, 2.0\]; allowed: one number or 1",
+        ),
+        (
+            dict(planar=True, joints=[Joint(1, Y_AXIS, -1, 1)], max_torque=-0.5),
+            r"Figure.max_torque\[0\] = -0.5; allowed: a finite number >= 0",
         ),
     ],
 )

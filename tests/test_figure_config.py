@@ -128,6 +128,15 @@ def test_beryl_tumble_is_not_periodic():
             figure_config(controller={"mirror": True}),
             r"\[controller\] .*figure 'star_man' is planar.*allowed: mirror = False",
         ),
+        (
+            figure_config(body={"figure": "star_man", "max_torque": -1.0}),
+            r"\[body\] max_torque = -1.0; allowed: a number >= 0 \(N m",
+        ),
+        (
+            figure_config(body={"figure": "bob", "max_torque": 5.0}),
+            r"\[body\] max_torque = 5.0 for figure = 'bob', a 3D figure; allowed: only for "
+            r"the planar figures \(star_man, beryl_biped, snake, luxo\)",
+        ),
     ],
 )
 def test_bad_figure_configs_name_the_key_the_value_and_what_is_allowed(raw, message):

@@ -127,6 +127,12 @@ class Figure(AbstractBody):
         node, a foot rod its two), in left-right pairs (left first; a planar figure's front
         leg counts as its left). Walking terms and checks read them (a foot is down when
         any of its nodes touches the floor, and is where its nodes' mean is); default none.
+    - `max_torque`: the joints' strength, N m (one number for every free joint angle, or
+        one per free angle; planar figures only). `None` (the default): kinematic joints,
+        the second paper's model, which follow the joint law whatever it takes. With a limit,
+        each joint applies the torque the law needs to follow its target, clipped to
+        `[-max_torque, max_torque]`, and the whole figure moves by Lagrangian rigid-body
+        dynamics under it (see `FigureDynamics`); `0` gives limp joints.
 
     The start pose has every free angle at 0, or at the nearer end of its range when 0 is
     outside it.
@@ -150,6 +156,7 @@ class Figure(AbstractBody):
     frame: tuple[tuple[float, float, float], ...] = eqx.field(static=True)
     name: str = eqx.field(static=True)
     feet: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    max_torque: tuple[float, ...] | None = eqx.field(static=True)
 
     def __init__(
         self,
@@ -163,6 +170,7 @@ class Figure(AbstractBody):
         frame: Float[ArrayLike, "3 3"] | None = None,
         name: str = "figure",
         feet: Sequence[Sequence[int]] = (),
+        max_torque: float | Sequence[float] | None = None,
     ):
         nodes_a = _floats("nodes", nodes, "(num_nodes, 3)")
         if nodes_a.ndim != 2 or nodes_a.shape[1] != 3 or not np.all(np.isfinite(nodes_a)):
@@ -286,6 +294,29 @@ class Figure(AbstractBody):
         self.frame = tuple(tuple(float(x) for x in row) for row in frame_a)
         self.name = str(name)
         self.feet = tuple(feet_t)
+        self.max_torque = None if max_torque is None else self._check_torque(max_torque)
+
+    def _check_torque(self, max_torque) -> tuple[float, ...]:
+        if not self.planar:
+            _fail(
+                f"{self.name}: max_torque = {max_torque!r} on a 3D figure; allowed: None "
+                "(kinematic joints); torque-limited joints are implemented for planar figures"
+            )
+        n = self.num_free
+        limits = np.atleast_1d(_floats("max_torque", max_torque, f"() or ({n},)"))
+        if limits.ndim != 1 or limits.shape[0] not in (1, n):
+            _fail(
+                f"Figure.max_torque = {max_torque!r}; allowed: one number or {n} (one per free "
+                "joint angle), N m"
+            )
+        limits = np.broadcast_to(limits, (n,))
+        for i, x in enumerate(limits):
+            if not (math.isfinite(x) and x >= 0):
+                _fail(
+                    f"Figure.max_torque[{i}] = {x:g}; allowed: a finite number >= 0 (N m; "
+                    "None for kinematic joints)"
+                )
+        return tuple(float(x) for x in limits)
 
     # ------------------------------------------------------------------ structure
 
@@ -600,6 +631,46 @@ class Figure(AbstractBody):
         h = tuple(_sum_leading(x) for x in s.vadd(s.cross(mr, mid_vel), own))
         return com, com_vel, inertia, h
 
+    def _chain_constants(self):
+        """Constants of a planar figure's Lagrangian dynamics (torque-limited joints).
+
+        Rod `l`'s segment `seg_l` (proximal to distal node) turns at `phi'_l = S_l . (w, th')`
+        (the root's rate plus the free joint rates on its chain). A rod's centre and a node
+        sit at `B seg` and `B_nodes seg` relative to the centre of mass, so the kinetic
+        energy about it is `1/2 sum g_ll' seg_l' . seg_l'' + 1/2 sum t_l phi'_l^2` with
+        `g = B^T diag(m) B`.
+
+        **Returns:** `(S, g, B_nodes, t)`: `(num_rods, 1 + num_free)`,
+        `(num_rods, num_rods)`, `(num_nodes, num_rods)`, `(num_rods,)` NumPy arrays.
+        """
+        num_rods = self.num_rods
+        path: dict[int, list[int]] = {self.rods[0][0]: []}
+        for k, (p, d) in enumerate(self.rods):
+            path[d] = path[p] + [k]
+        centres = np.zeros((num_rods, num_rods))
+        for k, (p, _d) in enumerate(self.rods):
+            centres[k, path[p]] = 1.0
+            centres[k, k] = 0.5
+        share = np.asarray(self.masses) / self.total_mass
+        com = share @ centres
+        b_nodes = np.zeros((self.num_nodes, num_rods))
+        for n, rods in path.items():
+            b_nodes[n, rods] = 1.0
+        b_rods, b_nodes = centres - com, b_nodes - com
+        g = b_rods.T @ (np.asarray(self.masses)[:, None] * b_rods)
+        free = {j: i for i, j in enumerate(self.free)}
+        joint_of = {jt.rod: j for j, jt in enumerate(self.joints)}
+        chain = np.zeros((num_rods, 1 + self.num_free))
+        chain[:, 0] = 1.0
+        parents = self.parents
+        for k in range(num_rods):
+            r = k
+            while r > 0:
+                if joint_of.get(r) in free:
+                    chain[k, 1 + free[joint_of[r]]] = 1.0
+                r = parents[r]
+        return chain, g, b_nodes, self._rod_inertias()[1]
+
     def pose(self, angles: Float[ArrayLike, " num_free"] | None = None) -> np.ndarray:
         """`(num_nodes, 3)` node positions for the free joint angles `angles` (default: the
         start angles), root as at rest, lowest node on the floor (NumPy; for drawing and
@@ -825,6 +896,28 @@ def _broadcast(values, like):
     return xp.stack([xp.broadcast_to(xp.asarray(v, like.dtype), like.shape) for v in values])
 
 
+def _solve_positive(a, b):
+    """Solve `a x = b` for a small symmetric positive definite `a` given as nested lists of
+    arrays (elementwise over their batch axes): Gaussian elimination without pivoting,
+    unrolled."""
+    n = len(b)
+    a = [list(row) for row in a]
+    b = list(b)
+    for k in range(n):
+        for i in range(k + 1, n):
+            f = a[i][k] / a[k][k]
+            for j in range(k + 1, n):
+                a[i][j] = a[i][j] - f * a[k][j]
+            b[i] = b[i] - f * b[k]
+    x = [None] * n
+    for i in reversed(range(n)):
+        acc = b[i]
+        for j in range(i + 1, n):
+            acc = acc - a[i][j] * x[j]
+        x[i] = acc / a[i][i]
+    return x
+
+
 class _Contact(NamedTuple):
     com: tuple
     com_vel: tuple
@@ -837,6 +930,9 @@ class _Contact(NamedTuple):
     arm: tuple | None
     forces: tuple | None
     like: Array
+    pos: list
+    kin_rates: list
+    held: list
 
 
 class FigureDynamics(AbstractDynamics):
@@ -876,9 +972,10 @@ class FigureDynamics(AbstractDynamics):
         return com, quat, angles, com_vel, momentum, _rows(thd, fig.num_free)
 
     def _limits(self, angles, rates):
-        """Angles clamped to their ranges, the rates the rods see, and the state's angle
-        rates (zero while pushing out of the range)."""
-        kin_angles, kin_rates, state_rates = [], [], []
+        """Angles clamped to their ranges, the rates the rods see, the state's angle rates
+        (zero while pushing out of the range) and whether each joint is held at its stop
+        (pushing out of the range or beyond it: the rods see no joint motion)."""
+        kin_angles, kin_rates, state_rates, held = [], [], [], []
         for (lo, hi), a, r in zip(self.figure.ranges, angles, rates, strict=True):
             lo, hi = float(lo), float(hi)
             pushing = ((a >= hi) & (r > 0)) | ((a <= lo) & (r < 0))
@@ -886,7 +983,8 @@ class FigureDynamics(AbstractDynamics):
             kin_angles.append(jnp.clip(a, lo, hi))
             kin_rates.append(jnp.where(pushing | outside, 0.0, r))
             state_rates.append(jnp.where(pushing, 0.0, r))
-        return kin_angles, kin_rates, state_rates
+            held.append(pushing | outside)
+        return kin_angles, kin_rates, state_rates, held
 
     def _contact(self, positions, velocities, world: World):
         """What the rates and the senses share (computed once when both are traced
@@ -894,7 +992,7 @@ class FigureDynamics(AbstractDynamics):
         floor's force at every node with its lever arm about the centre of mass."""
         fig = self.figure
         com, quat, angles, com_vel, momentum, rates = self._unpack(positions, velocities)
-        kin_angles, kin_rates, state_rates = self._limits(angles, rates)
+        kin_angles, kin_rates, state_rates, held = self._limits(angles, rates)
         all_a, all_r = fig._all_angles(_trig(kin_angles), kin_rates)
         # What depends on the positions alone is kept apart from what depends on the
         # velocities too: the semi-implicit step evaluates the rates twice at the same
@@ -920,7 +1018,20 @@ class FigureDynamics(AbstractDynamics):
             fx, fy, fz = floor_force(world, px, py, pz, vx, vy, vz)
             forces = (fx, 0.0 if fig.planar else fy, fz)
         return _Contact(
-            com, com_vel, angles, rates, state_rates, quat, rot, w_body, arm, forces, like
+            com,
+            com_vel,
+            angles,
+            rates,
+            state_rates,
+            quat,
+            rot,
+            w_body,
+            arm,
+            forces,
+            like,
+            pos,
+            kin_rates,
+            held,
         )
 
     def rates(self, state, actuation, world: World) -> BodyState:
@@ -947,6 +1058,8 @@ class FigureDynamics(AbstractDynamics):
                 (target[i] - angles[i] - 2.0 * tau * rates[i]) / (tau * tau)
                 for i in range(fig.num_free)
             ]
+        if fig.max_torque is not None and fig.num_free:
+            angle_acc = self._torque_limited(c, angle_acc)
         pack = lambda values: _broadcast(values, c.like)
         th = positions[2]
         com_vel = c.com_vel
@@ -961,6 +1074,57 @@ class FigureDynamics(AbstractDynamics):
         else:
             d_th, d_thd = jnp.zeros_like(th), jnp.zeros_like(th)
         return BodyState(FigurePositions(*d_pos, d_th), FigureVelocities(*d_vel, d_thd))
+
+    def _torque_limited(self, c: _Contact, desired: list) -> list:
+        """The joint accelerations a planar figure's torque-limited joints give, from the
+        accelerations `desired` that the joint law asks for.
+
+        The figure's angular motion about its centre of mass, in the coordinates `psi =
+        (root angle, free joint angles)`, obeys Lagrange's equations `M(psi) psi'' + b = (0,
+        tau)`: `M = S^T N S` with `N_ll' = g_ll' seg_l . seg_l' + delta_ll' t_l` (see
+        `Figure._chain_constants`), and `b = S^T (Gamma - Q)` with the velocity terms
+        `Gamma_l = -sum g_ll' phi'_l'^2 (y x seg_l) . seg_l'` and the floor's generalised
+        forces `Q_l = (y x seg_l) . sum_i B_il f_i` (uniform gravity exerts none about the
+        centre of mass). The root row has no actuator (it is `L' = torque`, which the state
+        already integrates); eliminating it leaves the joints' `K th'' + beta = tau`. The
+        joints apply the torque `K th''_desired + beta` the law needs, clipped to
+        `max_torque`, and move by `th'' = th''_desired + K^-1 (tau - tau_needed)`. A joint
+        held at its stop does not move: it leaves the system (its stop takes any torque)
+        and its state rate follows the law as with kinematic joints.
+        """
+        fig = self.figure
+        chain, g, b_nodes, inertia = fig._chain_constants()
+        like = c.like
+        extra = (1,) * like.ndim
+        const = lambda a: jnp.asarray(a, dtype=like.dtype).reshape(a.shape + extra)
+        n = fig.num_free
+        seg = [
+            _broadcast([s.sub(c.pos[d][i], c.pos[p][i]) for p, d in fig.rods], like) for i in (0, 2)
+        ]
+        sx, sz = seg
+        dots = sx[:, None] * sx[None, :] + sz[:, None] * sz[None, :]
+        turned = sz[:, None] * sx[None, :] - sx[:, None] * sz[None, :]  # (y x seg_l) . seg_l'
+        inertia_matrix = const(g) * dots + const(np.diag(inertia))
+        velocity = _broadcast([c.w_body[1], *c.kin_rates], like)
+        spin = jnp.einsum("la,a...->l...", chain, velocity)
+        bias = -jnp.einsum("lm...,m...->l...", const(g) * turned, spin * spin)
+        if c.forces is not None:
+            fx, _, fz = s.tmatvec(c.rot, c.forces)
+            fx, fz = (jnp.einsum("il,i...->l...", b_nodes, f) for f in (fx, fz))
+            bias = bias - (sz * fx - sx * fz)
+        m = jnp.einsum("la,lm...,mb->ab...", chain, inertia_matrix, chain)
+        b = jnp.einsum("la,l...->a...", chain, bias)
+        k = m[1:, 1:] - m[1:, :1] * m[:1, 1:] / m[0, 0]
+        beta = b[1:] - m[1:, 0] * b[0] / m[0, 0]
+        held = jnp.stack(c.held)
+        eye = const(np.eye(n)) > 0.5
+        k = jnp.where(held[:, None] | held[None, :], eye, k)
+        wanted = jnp.where(held, 0.0, jnp.stack(desired))
+        needed = jnp.einsum("ij...,j...->i...", k, wanted) + beta
+        limit = const(np.asarray(fig.max_torque))
+        excess = jnp.where(held, 0.0, jnp.clip(needed, -limit, limit) - needed)
+        change = _solve_positive([[k[i, j] for j in range(n)] for i in range(n)], _rows(excess, n))
+        return [desired[i] + change[i] for i in range(n)]
 
     def senses(self, state, world: World, control_dt: float):
         """The figure's senses, normalised to [0, 1] and clipped (`Figure.sense_names`).

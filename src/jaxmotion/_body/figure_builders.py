@@ -11,6 +11,7 @@ builder's senses by moving its joints.
 """
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -31,7 +32,7 @@ def _polar(angle_deg: float, length: float) -> np.ndarray:
     return np.array([math.cos(a), 0.0, math.sin(a)]) * length
 
 
-def star_man() -> Figure:
+def star_man(max_torque: float | Sequence[float] | None = None) -> Figure:
     """Mr. Star-Man (2D): five rods of 0.5 m radiating from one hub node, like a five-pointed
     star: the head (the root, straight up), two arms (18 degrees above horizontal, forward and
     backward) and two legs (54 degrees below horizontal). 5 rods, 6 nodes, 4 joint angles
@@ -39,6 +40,9 @@ def star_man() -> Figure:
     Masses: head 2 kg, arms 1 kg, legs 1.5 kg; rods 3 cm thick.
 
     He stands on his two feet (the leg tips, `feet`: front, then back), 0.59 m apart.
+
+    `max_torque` (N m, one number or one per joint angle; default `None`, kinematic
+    joints) limits the joints' strength (`Figure`).
     """
     hub = np.zeros(3)
     limbs = [90.0, 18.0, 162.0, -54.0, 234.0]  # head, front arm, back arm, front leg, back leg
@@ -53,11 +57,12 @@ def star_man() -> Figure:
         radii=0.03,
         planar=True,
         name="star_man",
+        max_torque=max_torque,
         feet=((4,), (5,)),
     )
 
 
-def beryl_biped() -> Figure:
+def beryl_biped(max_torque: float | Sequence[float] | None = None) -> Figure:
     """Beryl Biped (2D): a torso with two two-part legs. The torso (the root, 0.6 m, 4 kg)
     stands up from the hip; each leg is a thigh (0.45 m, 1.5 kg) from the hip and a shin
     (0.45 m, 1 kg) from the knee, resting 10 degrees either side of vertical. 5 rods, 6
@@ -65,6 +70,9 @@ def beryl_biped() -> Figure:
     thigh swings forward), knees 0..90 degrees (positive flexes: the shin, and the foot, go
     back, as a knee bends when the figure faces +x). Feet: the front leg's tip (as left),
     then the back leg's.
+
+    `max_torque` (N m, one number or one per joint angle; default `None`, kinematic
+    joints) limits the joints' strength (`Figure`).
     """
     hip = np.zeros(3)
     front = _polar(-80.0, 0.45)
@@ -86,6 +94,7 @@ def beryl_biped() -> Figure:
         radii=0.03,
         planar=True,
         name="beryl_biped",
+        max_torque=max_torque,
         feet=((3,), (5,)),
     )
 
@@ -238,12 +247,15 @@ def bob() -> Figure:
     )
 
 
-def snake() -> Figure:
+def snake(max_torque: float | Sequence[float] | None = None) -> Figure:
     """The snake of the third paper (its Figure 1; 2D): three rods of 0.3 m (1 kg each, 3 cm
     thick) in a line along x, lying on the floor. The middle rod is the root; the head (front,
     +x) and the tail (back) each turn against it about y, -90..90 degrees (a positive angle
     turns the head's tip down and the tail's tip up). 3 rods, 4 nodes, 2 joint angles.
     Body length 0.9 m.
+
+    `max_torque` (N m, one number or one per joint angle; default `None`, kinematic
+    joints) limits the joints' strength (`Figure`).
     """
     nodes = [np.array([x, 0.0, 0.0]) for x in (-0.15, 0.15, 0.45, -0.45)]
     rods = [(0, 1), (1, 2), (0, 3)]
@@ -256,10 +268,11 @@ def snake() -> Figure:
         radii=0.03,
         planar=True,
         name="snake",
+        max_torque=max_torque,
     )
 
 
-def luxo() -> Figure:
+def luxo(max_torque: float | Sequence[float] | None = None) -> Figure:
     """The Luxo lamp of the third paper (its Figure 2; 2D): a base (the root, 0.25 m along
     x on the floor, 1 kg), a lower arm (0.3 m, 0.3 kg) rising forward at 60 degrees from the
     base's back end, an upper arm (0.3 m, 0.3 kg) rising backward at 120 degrees from the
@@ -268,6 +281,9 @@ def luxo() -> Figure:
     lower arm against the base -60..60 degrees (positive tips it forward), the upper arm
     against the lower -75..75, the head against the upper arm -60..60. Rods 3 cm thick.
     Body length 0.25 m (the base; the arms and head stay within it at rest).
+
+    `max_torque` (N m, one number or one per joint angle; default `None`, kinematic
+    joints) limits the joints' strength (`Figure`).
     """
     back = np.array([-0.1, 0.0, 0.0])
     elbow = back + _polar(60.0, 0.3)
@@ -287,4 +303,5 @@ def luxo() -> Figure:
         radii=0.03,
         planar=True,
         name="luxo",
+        max_torque=max_torque,
     )

@@ -213,6 +213,11 @@ FIGURE_BUILDERS: dict[str, Callable] = {
 }
 
 
+def _takes_torque(builder: Callable) -> bool:
+    """Whether a figure builder can limit its joints' torque (the planar figures)."""
+    return "max_torque" in inspect.signature(builder).parameters
+
+
 def _body_schema(table: Mapping) -> tuple[dict[str, Key], Callable, str]:
     """The [body] schema: `lattice = NAME` (and the builder's sizes) or `figure = NAME`."""
     if not isinstance(table, Mapping):
@@ -228,7 +233,20 @@ def _body_schema(table: Mapping) -> tuple[dict[str, Key], Callable, str]:
             raise ConfigError(
                 f"[body] figure = {kind!r}; allowed: one of {', '.join(map(repr, FIGURE_BUILDERS))}"
             )
-        return {"figure": Key("string", _REQUIRED)}, FIGURE_BUILDERS[kind], "figure"
+        builder = FIGURE_BUILDERS[kind]
+        if "max_torque" in table and not _takes_torque(builder):
+            planar = ", ".join(name for name, b in FIGURE_BUILDERS.items() if _takes_torque(b))
+            raise ConfigError(
+                f"[body] max_torque = {table['max_torque']!r} for figure = {kind!r}, a 3D "
+                f"figure; allowed: only for the planar figures ({planar}): torque-limited "
+                "joints are implemented for planar figures"
+            )
+        schema = {"figure": Key("string", _REQUIRED)}
+        if _takes_torque(builder):
+            schema["max_torque"] = Key(
+                "number", None, _nonnegative, ">= 0 (N m: the joints' strength; unset: kinematic)"
+            )
+        return schema, builder, "figure"
     kind = table.get("lattice", "cube")
     if not isinstance(kind, str) or kind not in LATTICE_BUILDERS:
         raise ConfigError(
