@@ -152,30 +152,14 @@ def planar_chain_free_flight(
 
 
 def planar_chain_torque_limited(
-    lengths,
-    masses,
-    radii,
-    target: ArrayFn,
-    tau: float,
-    max_torque,
-    *,
-    theta0,
-    theta_dot0,
-    root_angle0: float,
-    com0,
-    com_velocity0,
-    root_angular_velocity0: float,
-    gravity: float,
-    duration: float,
-    dt: float,
-    save_every: int = 1,
+    lengths, masses, radii, target: ArrayFn, tau: float, max_torque, *, theta0, theta_dot0, **flight
 ) -> dict[str, np.ndarray]:
     """Free flight of the planar chain simulated by MuJoCo with torque-limited hinges: at every
     RK4 stage each hinge asks for the joint law's acceleration
     `(target(t) - theta - 2 tau theta') / tau^2`, the inverse-dynamics torque that realises it
     (root free) is clipped to `[-max_torque, max_torque]` and applied. The chain starts with
-    its joints at `theta0` moving at `theta_dot0`; otherwise as `planar_chain_free_flight`."""
-    max_torque = np.asarray(max_torque, dtype=np.float64)
+    its joints at `theta0` moving at `theta_dot0`; `flight` holds the keyword arguments of
+    `planar_chain_free_flight` (start, gravity, duration, dt, save_every)."""
 
     def wanted(t, th, thd):
         return (np.asarray(target(t), dtype=np.float64) - th - 2 * tau * thd) / tau**2
@@ -185,17 +169,10 @@ def planar_chain_torque_limited(
         masses,
         radii,
         wanted,
-        max_torque,
+        np.asarray(max_torque, dtype=np.float64),
         theta0=theta0,
         theta_dot0=theta_dot0,
-        root_angle0=root_angle0,
-        com0=com0,
-        com_velocity0=com_velocity0,
-        root_angular_velocity0=root_angular_velocity0,
-        gravity=gravity,
-        duration=duration,
-        dt=dt,
-        save_every=save_every,
+        **flight,
     )
 
 

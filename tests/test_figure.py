@@ -558,6 +558,21 @@ def test_fixed_step_solver_agrees_with_dopri5_at_first_order(x64):
     assert abs(slope - 1.0) < ORDER_TOL
 
 
+def chain_flight():
+    """The references' keyword arguments for the chain's start and timing."""
+    s = CHAIN_START
+    return dict(
+        root_angle0=s["root_angle"],
+        com0=s["com"],
+        com_velocity0=s["velocity"],
+        root_angular_velocity0=s["spin"],
+        gravity=G,
+        duration=CHAIN["duration"],
+        dt=MUJOCO_DT,
+        save_every=round(CHAIN["save_dt"] / MUJOCO_DT),
+    )
+
+
 def test_planar_chain_agrees_with_mujoco_and_the_numpy_reference(x64):
     """Prescribed joint motion, free root, gravity, no floor: root angle, centre of mass and
     every node against MuJoCo (hinges driven by exact inverse dynamics, RK4 at 2 ms) and the
@@ -577,16 +592,7 @@ def test_planar_chain_agrees_with_mujoco_and_the_numpy_reference(x64):
         controller.angle_rates,
         controller.accelerations,
     )
-    kwargs = dict(
-        root_angle0=s["root_angle"],
-        com0=s["com"],
-        com_velocity0=s["velocity"],
-        root_angular_velocity0=s["spin"],
-        gravity=G,
-        duration=CHAIN["duration"],
-        dt=MUJOCO_DT,
-        save_every=round(CHAIN["save_dt"] / MUJOCO_DT),
-    )
+    kwargs = chain_flight()
     ours = dict(
         root_angle=planar_root_angle(tr), com=np.asarray(tr.com), points=np.asarray(tr.points)
     )
@@ -630,7 +636,6 @@ def test_torque_limited_chain_agrees_with_mujoco(max_torque, x64):
             + tau**2 * controller.accelerations(t)
         )
 
-    s = CHAIN_START
     reference = mujoco_reference.planar_chain_torque_limited(
         CHAIN_LENGTHS,
         CHAIN_MASSES,
@@ -640,14 +645,7 @@ def test_torque_limited_chain_agrees_with_mujoco(max_torque, x64):
         max_torque,
         theta0=controller.angles(0.0),
         theta_dot0=controller.angle_rates(0.0),
-        root_angle0=s["root_angle"],
-        com0=s["com"],
-        com_velocity0=s["velocity"],
-        root_angular_velocity0=s["spin"],
-        gravity=G,
-        duration=CHAIN["duration"],
-        dt=MUJOCO_DT,
-        save_every=round(CHAIN["save_dt"] / MUJOCO_DT),
+        **chain_flight(),
     )
     assert np.abs(reference["theta"]).max() < WIDE_LIMIT
     np.testing.assert_allclose(reference["t"], np.asarray(tr.ts), atol=ROUNDING_TOL)
