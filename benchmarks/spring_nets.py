@@ -1,6 +1,7 @@
 """The third paper's largest evolution, end to end: 20 generations of 2,000 spring nets for the
-snake (T = 5 s at dt = 5 ms; the paper's 40,000 simulations, of which evolve runs 32,400:
-survivors keep their fitness), timed from a fresh process (imports and compilation
+snake, as `configs/snake_travel.toml` sets it up (T = 5 s; torque-limited joints at a 1 ms
+physics step, 5 ms control period; the paper's 40,000 simulations, of which evolve runs
+32,400: survivors keep their fitness), timed from a fresh process (imports and compilation
 included).
 
     python benchmarks/spring_nets.py [--runs 3] [--figure snake] [--generations 20] [--size 2000]
@@ -19,16 +20,18 @@ import sys
 import time
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[1]
+
 RUN = r"""
 import json, sys, time
 start = time.perf_counter()
 import jaxmotion as jm
 jm.use_cpu_cores()
 import jax.random as jr
-name, generations, size, seed = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
-figure = getattr(jm.figures, name)()
-task = jm.Task(figure, jm.World(), jm.SpringNetSpace(figure),
-               jm.Objective({"distance": 1.0}), duration=5.0, dt=0.005)
+from jaxmotion.experiment import load_config
+config, generations, size, seed = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+task = load_config(config).task
+figure = task.body
 marks = []
 setup = time.perf_counter()
 result = jm.evolve(task, key=jr.key(seed), generations=generations, size=size,
@@ -66,7 +69,7 @@ def main() -> None:
                 sys.executable,
                 "-c",
                 RUN,
-                args.figure,
+                str(ROOT / "configs" / f"{args.figure}_travel.toml"),
                 str(args.generations),
                 str(args.size),
                 str(run),
@@ -91,7 +94,7 @@ def main() -> None:
     median = {k: statistics.median(r[k] for r in rows) for k in rows[0]}
     print(
         f"median wall time {median['wall_s']:.1f} s (search {median['search_s']:.1f} s) for "
-        f"{args.generations} generations of {args.size} ({args.figure}, T = 5 s, dt = 5 ms)"
+        f"{args.generations} generations of {args.size} ({args.figure}, configs/{args.figure}_travel.toml)"
     )
     Path(args.json).write_text(
         json.dumps({"settings": vars(args), "runs": rows, "median": median}, indent=2) + "\n"

@@ -289,7 +289,11 @@ def test_the_configs_describe_the_papers_largest_run(name):
         "accurate_candidates": 0,
     }
     assert experiment.task.objective.to_dict() == {"distance": 1.0}
-    assert (experiment.task.duration, experiment.task.dt) == (5.0, 0.005)
+    # T = 5 s with the paper's 5 ms step as the control period; torque-limited joints on a
+    # 1 ms physics step (README, "Spring nets").
+    task = experiment.task
+    assert (task.duration, task.control_dt, task.dt) == (5.0, 0.005, 0.001)
+    assert task.body.max_torque is not None
     assert experiment.check == "hop_or_roll"
 
 

@@ -13,6 +13,10 @@ The formulation follows `notes/articulated-physics.md` (checked there against Mu
   centres moving and rods spinning relative to the root): internal motion changes `I` and the
   root turns so that, without contact, `L` stays what it was (a falling cat turns with
   `L = 0`).
+
+A planar figure can have torque-limited joints instead (`Figure(max_torque=...)`): each joint
+applies the torque the law asks for, clipped, and the joint angles move by Lagrangian
+dynamics (`FigureDynamics._torque_limited`); the centre of mass and `L` obey the same laws.
 """
 
 import math
@@ -944,6 +948,13 @@ class FigureDynamics(AbstractDynamics):
     rate, as the rods see it, is zero while the law's rate points out of the range, and the
     law keeps acting on that rate, which turns back into the range within about `tau` (the
     targets always lie inside the range).
+
+    **Torque-limited joints** (planar figures with `max_torque`): the joint applies the
+    torque that the law's acceleration needs, clipped to `[-max_torque, max_torque]`, and
+    the figure moves under it (`_torque_limited`; checked against MuJoCo in the tests). A
+    joint held at its stop is rigid, as above. A weak joint lets its rod move almost on its
+    own, so a contact at its tip acts on a light mass: the fixed-step solver needs a shorter
+    step there than for kinematic joints (the configs that use them say what they need).
     """
 
     figure: Figure

@@ -28,10 +28,11 @@ same solve as the body (`AbstractController.rates`): the semi-implicit Euler of 
 **Outputs.** Joint `j` (of the figure's free angles, in order) reads mass `outputs[j]`
 (default mass `j`): its target angle is the affine map of the position `[-1, 1]` onto the
 joint's range `[lo, hi]`, clipped, `th0 = (lo + hi) / 2 + (hi - lo) / 2 * clip(x, -1, 1)`,
-and the joint follows the second paper's kinematic law `tau^2 th'' + 2 tau th' + (th - th0)
-= 0`. The paper applied torques from the net's outputs through a general dynamics
-simulator; driving our kinematic joint targets instead is this library's documented
-deviation (as for the second paper's figures).
+and the joint follows the law `tau^2 th'' + 2 tau th' + (th - th0) = 0`. The paper applied
+torques from the net's outputs through a general dynamics simulator: a figure built with
+`max_torque` does so too (each joint applies the torque the law asks for, clipped, and the
+figure moves under it; `configs/snake_travel.toml` and `configs/luxo_travel.toml`); without
+it the joints are the second paper's kinematic ones, of unlimited torque.
 """
 
 import math
@@ -290,10 +291,10 @@ class SpringNetSpace(AbstractControllerSpace[SpringNet]):
 
     **Arguments:** `figure`; `num_masses` n (default 4; at least the figure's free angles,
     each of which reads its own mass: angle `j` reads mass `j`); `tau` the joints' time
-    constant (s, default 0.1: the joints are kinematic, so their torque is unlimited, and a
-    shorter time constant lets the limbs whip; the second paper's configs keep `tau >= 50
-    ms`); `mass_min`, `mass_max`, `stiffness_min`, `stiffness_max`;
-    `scale` the mutation's step (default 0.3); `damping` (1/s, default 0).
+    constant (s, default 0.1: with kinematic joints, whose torque is unlimited, a shorter
+    time constant lets the limbs whip; the torque-limited creatures of the configs use
+    0.03); `mass_min`, `mass_max`, `stiffness_min`, `stiffness_max`; `scale` the mutation's
+    step (default 0.3); `damping` (1/s, default 0).
 
     **Raises:** `TypeError` for a body that is not a `Figure`; `ValueError`, naming the
     argument, for a bad one.
