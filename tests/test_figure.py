@@ -502,11 +502,13 @@ def test_joint_follows_the_critically_damped_law_to_its_target(tau, x64):
     np.testing.assert_allclose(observed, expected, rtol=0, atol=JOINT_LAW_TOL)
 
 
-def test_joint_stops_at_its_limit_and_comes_back(x64):
+@pytest.mark.parametrize("max_torque", [None, 1.0])
+def test_joint_stops_at_its_limit_and_comes_back(max_torque, x64):
     """Started at +-0.5 rad moving at +-10 rad/s outward with tau = 0.2 s, the free law would
     overshoot to +-1.24; the joints stop at +-1, stay there while the law pushes outward, then
-    return to their targets."""
-    figure = chain()
+    return to their targets: kinematic joints, and torque-limited ones (1 N m: too weak to
+    stop the swing before the stop)."""
+    figure = chain(max_torque=max_torque)
     start, tau = np.array([0.5, -0.5]), 0.2
     assert start[0] + 10.0 * tau / np.e > CHAIN_LIMIT  # the unconstrained peak
     controller = PrescribedJoints(start, np.zeros(2), np.ones(2), np.zeros(2), tau)
