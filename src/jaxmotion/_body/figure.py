@@ -641,8 +641,8 @@ class Figure(AbstractBody):
         Rod `l`'s segment `seg_l` (proximal to distal node) turns at `phi'_l = S_l . (w, th')`
         (the root's rate plus the free joint rates on its chain). A rod's centre and a node
         sit at `B seg` and `B_nodes seg` relative to the centre of mass, so the kinetic
-        energy about it is `1/2 sum g_ll' seg_l' . seg_l'' + 1/2 sum t_l phi'_l^2` with
-        `g = B^T diag(m) B`.
+        energy about it is `1/2 sum_lk g_lk (d seg_l / dt) . (d seg_k / dt) + 1/2 sum_l t_l
+        phi'_l^2` with `g = B^T diag(m) B` and `t_l` the rod's transverse inertia.
 
         **Returns:** `(S, g, B_nodes, t)`: `(num_rods, 1 + num_free)`,
         `(num_rods, num_rods)`, `(num_nodes, num_rods)`, `(num_rods,)` NumPy arrays.
