@@ -813,6 +813,10 @@ class Figure(AbstractBody):
 
 _BARRIER_BLOCK = 8
 
+# s: how fast a torque-limited joint's outward rate dies out at its stop when no controller
+# gives a time constant (a passive figure).
+_STOP_TIME = 0.05
+
 
 def _barrier(tree):
     """Materialise the traced arrays of `tree` here.
@@ -1070,7 +1074,8 @@ class FigureDynamics(AbstractDynamics):
                 for i in range(fig.num_free)
             ]
         if fig.max_torque is not None and fig.num_free:
-            angle_acc = self._torque_limited(c, angle_acc)
+            stop_time = _STOP_TIME if actuation is None else actuation[1]
+            angle_acc = self._torque_limited(c, angle_acc, stop_time)
         pack = lambda values: _broadcast(values, c.like)
         th = positions[2]
         com_vel = c.com_vel
@@ -1086,7 +1091,7 @@ class FigureDynamics(AbstractDynamics):
             d_th, d_thd = jnp.zeros_like(th), jnp.zeros_like(th)
         return BodyState(FigurePositions(*d_pos, d_th), FigureVelocities(*d_vel, d_thd))
 
-    def _torque_limited(self, c: _Contact, desired: list) -> list:
+    def _torque_limited(self, c: _Contact, desired: list, stop_time) -> list:
         """The joint accelerations a planar figure's torque-limited joints give, from the
         accelerations `desired` that the joint law asks for.
 
@@ -1100,8 +1105,12 @@ class FigureDynamics(AbstractDynamics):
         already integrates); eliminating it leaves the joints' `K th'' + beta = tau`. The
         joints apply the torque `K th''_desired + beta` the law needs, clipped to
         `max_torque`, and move by `th'' = th''_desired + K^-1 (tau - tau_needed)`. A joint
-        held at its stop does not move: it leaves the system (its stop takes any torque)
-        and its state rate follows the law as with kinematic joints.
+        held at its stop does not move: it leaves the system (its stop takes any torque).
+        Its state rate (pushing out of the range) dies out over `stop_time` (the law's time
+        constant), and turns back into the range only when the joint, were it free, would
+        accelerate that way: a weak joint that a load presses into its stop stays there
+        (were it to leave whenever the law's rate turned, as a kinematic joint does, it
+        would chatter in and out of the stop, and an adaptive solver stalls there).
         """
         fig = self.figure
         chain, g, b_nodes, inertia = fig._chain_constants()
@@ -1127,15 +1136,29 @@ class FigureDynamics(AbstractDynamics):
         b = jnp.einsum("la,l...->a...", chain, bias)
         k = m[1:, 1:] - m[1:, :1] * m[:1, 1:] / m[0, 0]
         beta = b[1:] - m[1:, 0] * b[0] / m[0, 0]
-        held = jnp.stack(c.held)
         eye = const(np.eye(n)) > 0.5
-        k = jnp.where(held[:, None] | held[None, :], eye, k)
-        wanted = jnp.where(held, 0.0, jnp.stack(desired))
-        needed = jnp.einsum("ij...,j...->i...", k, wanted) + beta
         limit = const(np.asarray(fig.max_torque))
-        excess = jnp.where(held, 0.0, jnp.clip(needed, -limit, limit) - needed)
-        change = _solve_positive([[k[i, j] for j in range(n)] for i in range(n)], _rows(excess, n))
-        return [desired[i] + change[i] for i in range(n)]
+        wanted_all = jnp.stack(desired)
+
+        def accelerations(held):
+            k_held = jnp.where(held[:, None] | held[None, :], eye, k)
+            wanted = jnp.where(held, 0.0, wanted_all)
+            needed = jnp.einsum("ij...,j...->i...", k_held, wanted) + beta
+            excess = jnp.where(held, 0.0, jnp.clip(needed, -limit, limit) - needed)
+            rows = [[k_held[i, j] for j in range(n)] for i in range(n)]
+            return wanted_all + jnp.stack(_solve_positive(rows, _rows(excess, n)))
+
+        held = jnp.stack(c.held)
+        moving = accelerations(held)
+        # A joint pushing into its stop: what it would do if it were free decides when it
+        # leaves (a weak joint under a load stays), and its outward state rate dies out.
+        free = accelerations(jnp.zeros_like(held))
+        out = []
+        for i, ((lo, hi), a, r) in enumerate(zip(fig.ranges, c.angles, c.rates, strict=True)):
+            up, down = (a >= float(hi)) & (r > 0), (a <= float(lo)) & (r < 0)
+            leave = jnp.where(up, jnp.minimum(free[i], 0.0), jnp.maximum(free[i], 0.0))
+            out.append(jnp.where(up | down, leave - r / stop_time, moving[i]))
+        return out
 
     def senses(self, state, world: World, control_dt: float):
         """The figure's senses, normalised to [0, 1] and clipped (`Figure.sense_names`).
