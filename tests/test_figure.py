@@ -715,6 +715,41 @@ def test_a_joint_lifts_a_rod_lying_on_the_floor_only_with_the_torque_its_weight_
     assert (turned > MIN_HEAD_TURN) if rises else (turned < -MIN_HEAD_TURN)
 
 
+STOP_ANGLE = 0.3  # rad: the leaning rod's stop, 0.3 rad past upright
+STOP_TOL = 1e-3  # rad: the rod held at its stop leans 0.3 rad (the base's sag tilts it 6e-4)
+
+
+@pytest.mark.parametrize(("strength", "leaves"), [(0.7, False), (1.4, True)])
+def test_a_weak_joint_that_a_load_presses_into_its_stop_stays_there(strength, leaves, x64):
+    """A rod stands on a heavy base lying on the floor, leaning 0.3 rad forward against its
+    joint's stop; its law asks for upright. Gravity's moment `m g (l / 2) sin 0.3` presses it
+    into the stop: a joint weaker than that stays at the stop for the whole second (it does
+    not chatter in and out of it, so the adaptive solver gets through), a stronger one
+    leaves it and stands the rod up."""
+    nodes = np.array([[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0], [0.5, 0.0, 0.5]])
+    rod, length = 1.0, 0.5
+    moment = rod * G * length / 2 * math.sin(STOP_ANGLE)
+    figure = jm.Figure(
+        nodes,
+        [(0, 1), (1, 2)],
+        masses=[5.0, rod],
+        joints=[Joint(1, Y_AXIS, -1.0, STOP_ANGLE)],  # a positive angle leans it forward
+        planar=True,
+        max_torque=strength * moment,
+    )
+    controller = PrescribedJoints(np.zeros(1), np.zeros(1), np.ones(1), np.zeros(1), 0.05)
+    state = figure.state(angles=(STOP_ANGLE,))
+    tr = _simulate(figure, controller, on_floor(), state, duration=1.0, save_dt=0.05, **DOPRI)
+    points = np.asarray(tr.points)
+    rod_vector = points[:, 2] - points[:, 1]
+    lean = np.arctan2(rod_vector[:, 0], rod_vector[:, 2])  # from upright, forward positive
+    assert np.all(np.isfinite(lean))
+    if leaves:
+        assert abs(lean[-1]) < RETURN_TOL
+    else:
+        np.testing.assert_allclose(lean, STOP_ANGLE, rtol=0, atol=STOP_TOL)
+
+
 def brute_force_momentum(figure, angles, rates, w, eps=1e-6):
     """Angular momentum about the centre of mass of a figure at rest orientation turning at
     `w` with joint rates `rates`, from each rod's full rotated inertia tensor, its centre's
