@@ -274,3 +274,38 @@ def test_compare_writes_a_table_and_a_plot_on_equal_budgets(tmp_path):
     for strategy in summary["strategies"].values():
         assert all(b >= a for a, b in zip(summary["start_best"], strategy["best"], strict=True))
     assert "| stochastic search |" in (folder / "compare.md").read_text()
+
+
+def test_torque_limited_figure_gradients_agree_with_central_differences(x64):
+    """The snake with joints weak enough to clip (5 N m) on the floor, driven by spring
+    nets, 0.3 s: the gradient of the configs' fitness through the torque-limited dynamics
+    (clip, floor forces as generalised forces, the joint-space solve) against central
+    differences in every spring constant and initial position."""
+    figure = jm.figures.snake(max_torque=5.0)
+    task = jm.Task(
+        figure,
+        jm.World(),
+        jm.SpringNetSpace(figure, tau=0.03),
+        jm.Objective({"distance": 1.0, "max_height": 0.5}),
+        duration=0.3,
+        dt=0.001,
+        control_dt=0.005,
+    )
+    params = task.sample(2, key=jr.key(1))
+    _, grad = jm.fitness_and_gradient(task, params, smoothing=SMOOTH)
+
+    def fitness(p):
+        return np.asarray(jm.fitness_and_gradient(task, p, smoothing=SMOOTH)[0])
+
+    for field in ("stiffness", "positions"):
+        g = np.asarray(getattr(grad, field))
+        base = np.asarray(getattr(params, field))
+        assert np.max(np.abs(g)) > 0  # the nets move the body within 0.3 s
+        for c in range(base.shape[1]):
+            step = np.zeros_like(base)
+            step[:, c] = FD_STEP
+            up = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base + step))
+            down = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base - step))
+            fd = (up - down) / (2 * FD_STEP)
+            scale = max(1.0, float(np.max(np.abs(g))))
+            np.testing.assert_allclose(g[:, c], fd, rtol=FD_RTOL, atol=FD_RTOL * scale)
