@@ -54,10 +54,10 @@ def task_for(weights, duration=0.3):
     )
 
 
-def _assert_central_differences(grad, params, fitness):
-    """`grad` (of `Regimes`) against central differences of `fitness` (a batch's fitness)
-    in every trainable coordinate."""
-    for field in ("times", "coefficients"):
+def _assert_central_differences(grad, params, fitness, fields=("times", "coefficients")):
+    """`grad` against central differences of `fitness` (a batch's fitness) in every
+    coordinate of the trainable `fields` (by default those of `Regimes`)."""
+    for field in fields:
         g = np.asarray(getattr(grad, field))
         base = np.asarray(getattr(params, field))
         for c in range(base.shape[1]):
@@ -297,15 +297,6 @@ def test_torque_limited_figure_gradients_agree_with_central_differences(x64):
     def fitness(p):
         return np.asarray(jm.fitness_and_gradient(task, p, smoothing=SMOOTH)[0])
 
-    for field in ("stiffness", "positions"):
-        g = np.asarray(getattr(grad, field))
-        base = np.asarray(getattr(params, field))
-        assert np.max(np.abs(g)) > 0  # the nets move the body within 0.3 s
-        for c in range(base.shape[1]):
-            step = np.zeros_like(base)
-            step[:, c] = FD_STEP
-            up = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base + step))
-            down = fitness(eqx.tree_at(lambda p, f=field: getattr(p, f), params, base - step))
-            fd = (up - down) / (2 * FD_STEP)
-            scale = max(1.0, float(np.max(np.abs(g))))
-            np.testing.assert_allclose(g[:, c], fd, rtol=FD_RTOL, atol=FD_RTOL * scale)
+    fields = ("stiffness", "positions")
+    assert all(np.max(np.abs(np.asarray(getattr(grad, f)))) > 0 for f in fields)  # they move it
+    _assert_central_differences(grad, params, fitness, fields)
