@@ -940,7 +940,8 @@ class _Contact(NamedTuple):
     like: Array
     pos: list
     kin_rates: list
-    held: list
+    pushing: list
+    outside: list
 
 
 class FigureDynamics(AbstractDynamics):
@@ -988,9 +989,10 @@ class FigureDynamics(AbstractDynamics):
 
     def _limits(self, angles, rates):
         """Angles clamped to their ranges, the rates the rods see, the state's angle rates
-        (zero while pushing out of the range) and whether each joint is held at its stop
-        (pushing out of the range or beyond it: the rods see no joint motion)."""
-        kin_angles, kin_rates, state_rates, held = [], [], [], []
+        (zero while pushing out of the range), and per joint whether it pushes out of its
+        range at its stop and whether it is beyond its range (either way the rods see no
+        joint motion: the joint is held at its stop)."""
+        kin_angles, kin_rates, state_rates, pushing_all, outside_all = [], [], [], [], []
         for (lo, hi), a, r in zip(self.figure.ranges, angles, rates, strict=True):
             lo, hi = float(lo), float(hi)
             pushing = ((a >= hi) & (r > 0)) | ((a <= lo) & (r < 0))
@@ -998,8 +1000,9 @@ class FigureDynamics(AbstractDynamics):
             kin_angles.append(jnp.clip(a, lo, hi))
             kin_rates.append(jnp.where(pushing | outside, 0.0, r))
             state_rates.append(jnp.where(pushing, 0.0, r))
-            held.append(pushing | outside)
-        return kin_angles, kin_rates, state_rates, held
+            pushing_all.append(pushing)
+            outside_all.append(outside)
+        return kin_angles, kin_rates, state_rates, pushing_all, outside_all
 
     def _contact(self, positions, velocities, world: World):
         """What the rates and the senses share (computed once when both are traced
@@ -1007,7 +1010,7 @@ class FigureDynamics(AbstractDynamics):
         floor's force at every node with its lever arm about the centre of mass."""
         fig = self.figure
         com, quat, angles, com_vel, momentum, rates = self._unpack(positions, velocities)
-        kin_angles, kin_rates, state_rates, held = self._limits(angles, rates)
+        kin_angles, kin_rates, state_rates, pushing, outside = self._limits(angles, rates)
         all_a, all_r = fig._all_angles(_trig(kin_angles), kin_rates)
         # What depends on the positions alone is kept apart from what depends on the
         # velocities too: the semi-implicit step evaluates the rates twice at the same
@@ -1046,7 +1049,8 @@ class FigureDynamics(AbstractDynamics):
             like,
             pos,
             kin_rates,
-            held,
+            pushing,
+            outside,
         )
 
     def rates(self, state, actuation, world: World) -> BodyState:
@@ -1148,16 +1152,15 @@ class FigureDynamics(AbstractDynamics):
             rows = [[k_held[i, j] for j in range(n)] for i in range(n)]
             return wanted_all + jnp.stack(_solve_positive(rows, _rows(excess, n)))
 
-        held = jnp.stack(c.held)
-        moving = accelerations(held)
+        pushing = jnp.stack(c.pushing)
+        moving = accelerations(pushing | jnp.stack(c.outside))
         # A joint pushing into its stop: what it would do if it were free decides when it
         # leaves (a weak joint under a load stays), and its outward state rate dies out.
-        free = accelerations(jnp.zeros_like(held))
+        free = accelerations(jnp.zeros_like(pushing))
         out = []
-        for i, ((lo, hi), a, r) in enumerate(zip(fig.ranges, c.angles, c.rates, strict=True)):
-            up, down = (a >= float(hi)) & (r > 0), (a <= float(lo)) & (r < 0)
-            leave = jnp.where(up, jnp.minimum(free[i], 0.0), jnp.maximum(free[i], 0.0))
-            out.append(jnp.where(up | down, leave - r / stop_time, moving[i]))
+        for i, r in enumerate(c.rates):
+            leave = jnp.where(r > 0, jnp.minimum(free[i], 0.0), jnp.maximum(free[i], 0.0))
+            out.append(jnp.where(c.pushing[i], leave - r / stop_time, moving[i]))
         return out
 
     def senses(self, state, world: World, control_dt: float):
