@@ -43,3 +43,7 @@ def x64():
     """Run a test in float64 (accuracy tests): build bodies and controllers inside it."""
     with jax.enable_x64(True):
         yield
+
+
+# Worker crashes are re-run, not hung on: see crash_tolerant.py.
+from crash_tolerant import pytest_xdist_make_scheduler  # noqa: E402, F401
