@@ -1,5 +1,6 @@
-"""`[search] accurate_candidates`: the final set's fittest replayed accurately (float64,
-Dopri5, tight tolerances) and the best chosen by the lower of its two fitnesses."""
+"""`[search] accurate_candidates`: the final set's fittest (serial search's archive)
+replayed accurately (float64, Dopri5, tight tolerances) and the best chosen by the lower of
+its two fitnesses."""
 
 import math
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 import jaxmotion as jm
+from jaxmotion._cli.config import make_searcher
 from jaxmotion._cli.results import accurate_fitness, pick_accurate
 from jaxmotion.experiment import ConfigError, parse_config
 
@@ -93,6 +95,10 @@ def test_the_config_key():
     for algorithm in ("serial_search", "evolve"):
         raw["search"]["algorithm"] = algorithm
         assert parse_config(raw).search["accurate_candidates"] == 10
+    # Serial search's few final climbers are alike: it keeps an archive of the fittest
+    # controllers it held (`SerialSearch(archive=K)`), as many as the replay chooses among.
+    raw["search"]["algorithm"] = "serial_search"
+    assert make_searcher(parse_config(raw).search)[0].archive == 10
     del raw["search"]["algorithm"]
     raw["search"]["accurate_candidates"] = -1
     with pytest.raises(

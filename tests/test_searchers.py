@@ -89,7 +89,7 @@ def _score(task: Planted, params):
 # Every registered searcher, with settings for about 600 evaluations of the synthetic task.
 SETTINGS = {
     "parallel_hill_climb": (dict(size=20, batch=20), 30),
-    "serial_search": (dict(climbers=10, reseed_every=10, seeds=2), 30),
+    "serial_search": (dict(climbers=10, reseed_every=10, seeds=2, archive=15), 30),
     "evolve": (dict(size=20, mutations=2), 30),
     "evosax": (dict(strategy="CMA_ES", population=16, size=16), 30),
     "evosax_open_es": (dict(strategy="Open_ES", population=16, size=16, learning_rate=0.1), 30),

@@ -283,6 +283,7 @@ def test_blown_up_runs_are_recorded_and_never_replace_a_finite_climber():
         (dict(seeds=0), r"seeds = 0; allowed: an integer >= 1"),
         (dict(seeds=1.0), r"seeds = 1.0; allowed: an integer >= 1"),
         (dict(seed_offset=-1), r"seed_offset = -1; allowed: an integer >= 0"),
+        (dict(archive=-1), r"archive = -1; allowed: an integer >= 0"),
     ],
 )
 def test_bad_settings_raise_before_anything_compiles(monkeypatch, kwargs, message):
@@ -297,3 +298,56 @@ def test_bad_settings_raise_before_anything_compiles(monkeypatch, kwargs, messag
     if "climbers" in kwargs or "reseed_every" in kwargs:
         with pytest.raises(ValueError, match=message):
             jm.SerialSearch(**kwargs)
+
+
+@pytest.mark.parametrize("size", [4, 50])  # fewer places than controllers held; more
+def test_the_archive_keeps_the_fittest_controllers_ever_held(size):
+    """`archive = K`: each seed's K fittest controllers it ever held as climbers (the
+    initial set, every kept mutant; reseeding's copies are nothing new), best first, stably;
+    unfilled places `-inf`. Followed here from the outside, step by step; the search itself
+    is bitwise the one without an archive, and `fittest` reads the archive."""
+    task = tiny_task()
+    seeds, climbers = 2, 3
+    held = [[] for _ in range(seeds)]  # per seed: (fitness, controller), in the order held
+
+    def hold(state, controllers, fitness, kept):
+        for s, c in itertools.product(range(seeds), range(climbers)):
+            if kept[s, c]:
+                held[s].append((float(fitness[s, c]), on_host(per_climber(controllers, s, c))))
+
+    searches = {}
+    for size_ in (0, size):
+        search = jm.SerialSearch(climbers=climbers, reseed_every=7, seeds=seeds, archive=size_)
+        state, _ = search.init(task, key=jr.key(3))
+        if size_:
+            hold(state, state.population, state.fitness, np.ones((seeds, climbers), bool))
+        for _ in range(30):
+            mutants = search.ask(task, state)
+            fitness, extras = search.evaluate(task, state, mutants)
+            if size_:
+                per_seed = jax.tree_util.tree_map(
+                    lambda a: a.reshape(seeds, climbers, *a.shape[1:]), mutants
+                )
+                f = np.asarray(fitness).reshape(seeds, climbers)
+                hold(state, per_seed, f, f > np.asarray(state.fitness))
+            state = search.tell(state, mutants, fitness, **extras)
+        searches[size_] = state
+
+    plain, state = searches[0], searches[size]
+    assert plain.archive is None and plain.archive_fitness is None
+    assert_same(plain.population, state.population)
+    assert_same(plain.fitness, state.fitness)
+    assert len(held[0]) > climbers  # mutants were kept: more than the first set was held
+    for s in range(seeds):
+        ranked = sorted(held[s], key=lambda fc: -fc[0])[:size]  # stable: first held first
+        expect = [f for f, _ in ranked] + [-np.inf] * (size - len(ranked))
+        np.testing.assert_array_equal(np.asarray(state.archive_fitness[s]), expect)
+        for k, (_, controller) in enumerate(ranked):
+            assert_same(per_climber(state.archive, s, k), controller)
+
+    result = jm.SearchResult(best=None, best_fitness=0.0, history=None, state=state)
+    chosen, fitness = jm.fittest(result, 5)
+    everything = np.asarray(state.archive_fitness).reshape(-1)
+    np.testing.assert_array_equal(fitness, np.sort(everything)[::-1][:5])
+    top = np.unravel_index(np.argmax(everything), state.archive_fitness.shape)
+    assert_same(jax.tree_util.tree_map(lambda a: a[0], chosen), per_climber(state.archive, *top))

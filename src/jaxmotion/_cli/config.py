@@ -401,8 +401,8 @@ SEARCH = {
         "integer",
         0,
         lambda v: 0 <= v <= MAX_BATCH,
-        f">= 0, at most {MAX_BATCH} (the final set's fittest, replayed accurately to choose "
-        "the best; 0: off)",
+        f">= 0, at most {MAX_BATCH} (the final set's fittest, serial search's fittest held, "
+        "replayed accurately to choose the best; 0: off)",
     ),
 }
 
@@ -528,8 +528,14 @@ def _hill_climb(s: Mapping[str, Any]) -> AbstractSearcher:
 
 
 def _serial(s: Mapping[str, Any]) -> AbstractSearcher:
+    # An accurate choice among many (`accurate_candidates`) draws from the archive of the
+    # fittest controllers held: the final climbers are few and alike (SerialSearch).
     return SEARCHERS["serial_search"](
-        climbers=s["climbers"], reseed_every=s["reseed_every"], enrich=s["enrich"], seeds=s["runs"]
+        climbers=s["climbers"],
+        reseed_every=s["reseed_every"],
+        enrich=s["enrich"],
+        seeds=s["runs"],
+        archive=s["accurate_candidates"],
     )
 
 

@@ -350,7 +350,7 @@ def _accurate(task64: Task, controller: AbstractController) -> float:
 
 def pick_accurate(task: Task, result: SearchResult, k: int) -> tuple[SearchResult, dict]:
     """Choose the best controller among the `k` fittest of the search's final set
-    (`jaxmotion.fittest`: hill climbing's set, serial search's climbers of every run,
+    (`jaxmotion.fittest`: hill climbing's set, serial search's archive of the fittest it held,
     evolution's population; evosax's best alone) by their accurate replay
     (`accurate_fitness`): the one whose lower fitness of the two (the search's, the
     accurate replay's) is highest, so that the motion an animator re-simulates with an

@@ -61,11 +61,15 @@ class SearchResult:
 def fittest(result: SearchResult, k: int) -> tuple[AbstractController, np.ndarray]:
     """The `k` fittest controllers of a search's final set (stacked, best first) and their
     fitness, from its state's `population` and `fitness` (any leading axes: serial search's
-    runs and climbers); controllers whose fitness is not finite are left out. A searcher
-    whose state keeps no such set (evosax's: a distribution) gives its best alone."""
+    runs and climbers), or from its `archive` and `archive_fitness` when it keeps one
+    (`SerialSearch(archive=K)`: the fittest controllers it held over the whole search);
+    controllers whose fitness is not finite are left out. A searcher whose state keeps no
+    such set (evosax's: a distribution) gives its best alone."""
     state = result.state
     population = getattr(state, "population", None)
     fitness = getattr(state, "fitness", None)
+    if getattr(state, "archive", None) is not None:
+        population, fitness = state.archive, state.archive_fitness
     if population is None or fitness is None:
         best = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], result.best)
         return best, np.asarray([result.best_fitness])

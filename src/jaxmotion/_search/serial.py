@@ -41,6 +41,10 @@ class SerialSearchState(eqx.Module):
     - `motion`: for a family whose mutation looks at the parent's motion (`uses_motion`),
         the senses each climber perceived along its motion, `(seeds, climbers, samples,
         senses)`; otherwise `None`.
+    - `archive`, `archive_fitness`: with `SerialSearch(archive=K)`, each seed's `K` fittest
+        controllers it has held as climbers (the initial set, enrichment rounds, kept
+        mutants; reseeding makes copies, nothing new), best first (stably: on ties the one
+        held first), `(seeds, K)`; an unfilled place has fitness `-inf`. Otherwise `None`.
 
     Seed `s` of a batched state, `state.seed(s)`, is bitwise the state of that seed run
     alone.
@@ -52,6 +56,8 @@ class SerialSearchState(eqx.Module):
     generation: Int[Array, ""]
     evaluations: Int[Array, ""]
     motion: Float[Array, "seeds climbers samples senses"] | None = None
+    archive: AbstractController | None = None
+    archive_fitness: Float[Array, "seeds archive"] | None = None
 
     @property
     def num_seeds(self) -> int:
@@ -61,12 +67,18 @@ class SerialSearchState(eqx.Module):
     def seed(self, s: int) -> "SerialSearchState":
         """The state of seed number `s` of this batch (the `s`-th along the leading axis),
         with a seeds axis of length 1: the state a run of that seed alone would have."""
+        per_seed = lambda st: (
+            st.population,
+            st.fitness,
+            st.key,
+            st.motion,
+            st.archive,
+            st.archive_fitness,
+        )
         return eqx.tree_at(
-            lambda st: (st.population, st.fitness, st.key, st.motion),
+            per_seed,
             self,
-            jax.tree_util.tree_map(
-                lambda a: a[s : s + 1], (self.population, self.fitness, self.key, self.motion)
-            ),
+            jax.tree_util.tree_map(lambda a: a[s : s + 1], per_seed(self)),
             is_leaf=lambda x: x is None,
         )
 
@@ -106,6 +118,13 @@ class SerialSearch(AbstractSearcher):
 
     `ask` and `tell` are jitted; `step` composes ask, `task.evaluate` and tell.
 
+    With `archive = K` the state also keeps each seed's `K` fittest controllers ever held as
+    climbers (`SerialSearchState.archive`), which `jaxmotion.fittest` then reads instead of
+    the final climbers: the choice set of an accurate replay (`[search]
+    accurate_candidates`). The climbers of a chaotic motion (a cartwheel) are ten fits to
+    one step's rounding; the motions held on the way there are many more, and some of them
+    survive an accurate integrator. The search itself is unchanged, bitwise.
+
     **Arguments:**
 
     - `climbers`: controllers per seed (the paper's C = 10).
@@ -113,6 +132,7 @@ class SerialSearch(AbstractSearcher):
     - `enrich`: rounds of relevance-heuristic reinitialisation of the initial set (0: none).
     - `seeds`, `seed_offset`: the independent runs `init` draws by default (seeds
         `seed_offset, ..., seed_offset + seeds - 1`).
+    - `archive`: how many of the fittest controllers held to keep per seed (0: none).
     """
 
     name: ClassVar[str] = "serial_search"
@@ -122,6 +142,7 @@ class SerialSearch(AbstractSearcher):
     enrich: int = eqx.field(static=True)
     seeds: int = eqx.field(static=True)
     seed_offset: int = eqx.field(static=True)
+    archive: int = eqx.field(static=True)
 
     def __init__(
         self,
@@ -130,6 +151,7 @@ class SerialSearch(AbstractSearcher):
         enrich: int = 0,
         seeds: int = 1,
         seed_offset: int = 0,
+        archive: int = 0,
     ):
         self.climbers = _check_positive_int("climbers", climbers)
         self.reseed_every = _check_positive_int("reseed_every", reseed_every)
@@ -138,6 +160,9 @@ class SerialSearch(AbstractSearcher):
         self.enrich = int(enrich)
         self.seeds = _check_positive_int("seeds", seeds)
         self.seed_offset = _check_seed_offset(seed_offset)
+        if isinstance(archive, bool) or not isinstance(archive, int | np.integer) or archive < 0:
+            raise ValueError(f"archive = {archive!r}; allowed: an integer >= 0")
+        self.archive = int(archive)
 
     def init(
         self,
@@ -184,7 +209,7 @@ class SerialSearch(AbstractSearcher):
         """The climbers of each seed with their fitness (and their motion, for a family
         whose mutation uses it); the `enrich` rounds come after, in `init`."""
         del task
-        return _start(candidates, fitness, carry, motion)
+        return _start(candidates, fitness, carry, motion, self.archive)
 
     def ask(self, task: Task, state: SerialSearchState) -> AbstractController:
         """This generation's mutant of every climber: `seeds * climbers` controllers along
@@ -241,7 +266,10 @@ class SerialSearch(AbstractSearcher):
     def template(self, task: Task) -> SerialSearchState:
         x = jax.ShapeDtypeStruct((), jnp.float32)
         motion = x if type(task.space).uses_motion else None
-        return SerialSearchState(_population_shape(task), x, x, x, x, motion)
+        if not self.archive:
+            return SerialSearchState(_population_shape(task), x, x, x, x, motion)
+        population = _population_shape(task)
+        return SerialSearchState(population, x, x, x, x, motion, population, x)
 
     def check_resume(self, state: SerialSearchState, history) -> None:
         _rounds(state, history, state.num_seeds, self.climbers)
@@ -338,18 +366,53 @@ def _sample(task: Task, key, seeds, climbers: int):
 
 
 @eqx.filter_jit
-def _start(population, fitness, keys, motion) -> SerialSearchState:
+def _start(population, fitness, keys, motion, archive: int) -> SerialSearchState:
     seeds = keys.shape[0]
     fitness = fitness.reshape(seeds, -1)
+    population = _per_seed(population, seeds)
+    # A NaN must never enter the set: it would compare false against everything.
+    fitness = finite_fitness(_flat(population), fitness.reshape(-1)).reshape(seeds, -1)
+    kept, kept_fitness = None, None
+    if archive:
+        empty = jax.tree_util.tree_map(
+            lambda a: jnp.zeros((seeds, archive, *a.shape[2:]), a.dtype), population
+        )
+        unfilled = jnp.full((seeds, archive), -jnp.inf, fitness.dtype)
+        kept, kept_fitness = _archived(empty, unfilled, population, fitness)
     return SerialSearchState(
-        population=_per_seed(population, seeds),
-        # A NaN must never enter the set: it would compare false against everything.
-        fitness=finite_fitness(population, fitness.reshape(-1)).reshape(seeds, -1),
+        population=population,
+        fitness=fitness,
         key=keys,
         generation=jnp.asarray(0, dtype=jnp.int32),
         evaluations=jnp.asarray(fitness.shape[1], dtype=jnp.int32),
         motion=None if motion is None else _per_seed(motion, seeds),
+        archive=kept,
+        archive_fitness=kept_fitness,
     )
+
+
+def _archived(archive, archive_fitness, new, new_fitness):
+    """Each seed's archive `(seeds, K)` merged with controllers `new` `(seeds, n)` (a new
+    fitness of `-inf` adds nothing): the `K` fittest of both, best first, stably (on ties
+    the archive's before the new, each in its order)."""
+    size = archive_fitness.shape[1]
+    fitness = jnp.concatenate([archive_fitness, new_fitness], axis=1)
+    order = jnp.argsort(-fitness, axis=1, stable=True)[:, :size]
+
+    def pick(a, b):
+        both = jnp.concatenate([a, b], axis=1)
+        return jnp.take_along_axis(both, order.reshape(order.shape + (1,) * (a.ndim - 2)), 1)
+
+    return jax.tree_util.tree_map(pick, archive, new), jnp.take_along_axis(fitness, order, 1)
+
+
+def _archive_kept(state: SerialSearchState, candidates, fitness, new):
+    """`state`'s archive with the climbers `candidates` `(seeds, climbers)` where `new` holds
+    (the rest already in it, or not kept), or `(None, None)` without an archive."""
+    if state.archive is None:
+        return None, None
+    added = jnp.where(new, fitness, -jnp.inf)
+    return _archived(state.archive, state.archive_fitness, candidates, added)
 
 
 @simulation_jit
@@ -373,13 +436,17 @@ def _replace(state: SerialSearchState, candidates, fitness, motion) -> SerialSea
     """Every climber replaced by its candidate, whatever the fitness (enrichment)."""
     seeds, climbers = state.fitness.shape
     fitness = finite_fitness(candidates, fitness.reshape(-1)).reshape(seeds, climbers)
+    population = _per_seed(candidates, seeds)
+    archive, archive_fitness = _archive_kept(state, population, fitness, True)
     return SerialSearchState(
-        population=_per_seed(candidates, seeds),
+        population=population,
         fitness=fitness,
         key=state.key,
         generation=state.generation,
         evaluations=state.evaluations + climbers,
         motion=None if motion is None else _per_seed(motion, seeds),
+        archive=archive,
+        archive_fitness=archive_fitness,
     )
 
 
@@ -425,6 +492,7 @@ def _tell(state: SerialSearchState, mutants, fitness, motion, reseed_every):
         (mutants, motion),
         (state.population, state.motion),
     )
+    archive, archive_fitness = _archive_kept(state, mutants, fitness, better)
     fitness = jnp.where(better, fitness, state.fitness)
     generation = state.generation + 1
     reseed = generation % reseed_every == 0
@@ -443,6 +511,8 @@ def _tell(state: SerialSearchState, mutants, fitness, motion, reseed_every):
         generation=generation,
         evaluations=state.evaluations + climbers,
         motion=motion,
+        archive=archive,
+        archive_fitness=archive_fitness,
     )
 
 
@@ -503,6 +573,7 @@ def serial_search(
     generations: int = 4000,
     reseed_every: int = 200,
     enrich: int = 0,
+    archive: int = 0,
     progress: bool = False,
     callback: Callable[[SerialSearchState, tuple[History, ...]], None] | None = None,
     state: SerialSearchState | None = None,
@@ -533,6 +604,8 @@ def serial_search(
     - `reseed_every`: generations between reseedings (the paper's R = 200).
     - `enrich`: rounds of relevance-heuristic reinitialisation of the initial set (the
         paper's Bob: 3; see `SerialSearch`).
+    - `archive`: keep each seed's `archive` fittest controllers ever held as climbers
+        (`SerialSearchState.archive`; what `jaxmotion.fittest` reads; 0: none).
     - `progress`: show a tqdm progress bar (off by default: the library does not print).
     - `callback`: called after the initial evaluations and after every generation with the
         state and those evaluations, one `History` per seed.
@@ -554,6 +627,7 @@ def serial_search(
         enrich=enrich,
         seeds=seeds,
         seed_offset=seed_offset,
+        archive=archive,
     )
     if state is not None:
         _rounds(state, history, search.seeds, search.climbers)
