@@ -3,11 +3,15 @@ complete results folder whose summary carries its check's verdict (small budgets
 the paper's full budget the default seed passes its check (`-m slow`, not in CI)."""
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from jaxmotion._cli.results import accurate_check
+from jaxmotion.experiment import load_result
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -26,6 +30,10 @@ MOTIONS = {
         {"turns", "max_tilt_degrees", "displacement_body_lengths", "on_floor_at_end"},
     ),
 }
+
+# One float64 adaptive replay (rtol 1e-8) computed by two processes with different XLA
+# options: the step sizes it adapts differ in the last bits, the figures by about its rtol.
+ACCURATE_REPLAY_AGREEMENT = 1e-6
 
 FILES = {
     "config.toml",
@@ -91,6 +99,15 @@ def test_each_motion_config_runs_and_writes_everything(config, tmp_path):
     accurate = summary["accurate"]
     assert accurate["candidates"] == 2 and accurate["fitness"] == summary["best_fitness"]
     assert summary["best_fitness"] <= accurate["search_best_fitness"]
+    # The chosen motion's check under the accurate replay, as this process computes it.
+    experiment, controller = load_result(folder)
+    again = accurate_check(experiment, controller).to_dict()
+    assert (accurate["check"]["name"], accurate["check"]["passed"]) == (name, again["passed"])
+    assert accurate["check"]["criteria"] == again["criteria"]
+    for key, value in again["figures"].items():
+        assert math.isclose(
+            accurate["check"]["figures"][key], value, rel_tol=ACCURATE_REPLAY_AGREEMENT
+        )
 
 
 @pytest.mark.slow

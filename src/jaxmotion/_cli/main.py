@@ -533,7 +533,13 @@ def _run(path: Path, args) -> int:
                 f"chose #{accurate['chosen_rank'] + 1}, fitness {_short(accurate['fitness'])} "
                 f"(accurately {_short(accurate['accurate_fitness'])}; the fittest's: "
                 f"{_short(accurate['search_best_fitness'])}, accurately "
-                f"{_short(accurate['search_best_accurate_fitness'])})",
+                f"{_short(accurate['search_best_accurate_fitness'])})"
+                + (
+                    f"; its check under accurate replay: "
+                    f"{'passed' if accurate['check']['passed'] else 'failed'}"
+                    if accurate.get("check")
+                    else ""
+                ),
                 file=sys.stderr,
             )
         if summary.get("check"):

@@ -341,6 +341,14 @@ def accurate_fitness(task: Task, controller: AbstractController) -> float:
         return _accurate(_float64(task), controller)
 
 
+def accurate_check(experiment: Experiment, controller: AbstractController):
+    """The experiment's check (`run_check`) on a controller's motion replayed accurately
+    (`ACCURATE`), from the task's own start."""
+    with jax.enable_x64(True):
+        trajectory = _float64(experiment.task).simulate(_float64(controller), **ACCURATE)
+        return run_check(experiment, trajectory)
+
+
 def _accurate(task64: Task, controller: AbstractController) -> float:
     """`accurate_fitness` of a task already in float64 (inside `jax.enable_x64`)."""
     trajectory = task64.simulate(_float64(controller), **ACCURATE)
@@ -567,6 +575,10 @@ def _search_and_write(
     trajectory = replays[int(np.argmax([r.best_fitness for r in runs]))]
     values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
     check = run_check(experiment, trajectory)
+    accurate = timing.get("accurate")
+    if accurate and accurate.get("candidates") and check is not None:
+        # The motion an animator re-simulates accurately, checked as the search's replay is.
+        accurate["check"] = accurate_check(experiment, best).to_dict()
     replay_fitness = fitness_of(task, best)
     per_run = None
     if len(runs) > 1:
@@ -625,7 +637,7 @@ def _search_and_write(
         else None,
         "check": None if check is None else check.to_dict(),
         "runs": per_run,
-        "accurate": timing.get("accurate"),
+        "accurate": accurate,
         "devices": len(jax.devices()),
         "float": str(jnp.result_type(float)),
         "jax": jax.__version__,
