@@ -38,30 +38,6 @@ else:
     os.environ["XLA_FLAGS"] = _USER_XLA_FLAGS
 
 
-# The files holding the longest tests (CI's slowest-15 list), handed out first: xdist gives
-# the workers whole files in collection order (`--no-loadscope-reorder` in pyproject.toml;
-# its default order, most tests first, handed the one-test sweep file out last), and a long
-# file handed out last kept one worker busy for a minute or more after the other finished.
-_LONG_FILES = (
-    "test_sweep.py",
-    "test_checkpoint.py",
-    "test_notebooks.py",
-    "test_refine.py",
-    "test_closed_loop.py",
-    "test_search.py",
-    "test_backward.py",
-    "test_cache.py",
-    "test_config.py",
-    "test_paper000.py",
-    "test_export.py",
-)
-
-
-def pytest_collection_modifyitems(items):
-    first = {name: k for k, name in enumerate(_LONG_FILES)}
-    items.sort(key=lambda item: first.get(item.path.name, len(first)))  # stable: files stay whole
-
-
 @pytest.fixture
 def x64():
     """Run a test in float64 (accuracy tests): build bodies and controllers inside it."""
