@@ -40,6 +40,12 @@ def _check_positive_int(name: str, value) -> int:
     return int(value)
 
 
+def _check_count(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+        raise ValueError(f"{name} = {value!r}; allowed: an integer >= 0")
+    return int(value)
+
+
 @register
 class ParallelHillClimb(AbstractSearcher):
     """Parallel hill climbing (first paper, Figure 4), as pure init / ask / tell functions.

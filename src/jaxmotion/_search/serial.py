@@ -19,6 +19,7 @@ from .._sim.execution import batch_size, padded, share
 from .._task import Task
 from .hill_climb import (
     _STARTS,
+    _check_count,
     _check_positive_int,
     _check_resume,
     _population_shape,
@@ -81,12 +82,6 @@ class SerialSearchState(eqx.Module):
             jax.tree_util.tree_map(lambda a: a[s : s + 1], per_seed(self)),
             is_leaf=lambda x: x is None,
         )
-
-
-def _check_seed_offset(value) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
-        raise ValueError(f"seed_offset = {value!r}; allowed: an integer >= 0")
-    return int(value)
 
 
 @register
@@ -155,14 +150,10 @@ class SerialSearch(AbstractSearcher):
     ):
         self.climbers = _check_positive_int("climbers", climbers)
         self.reseed_every = _check_positive_int("reseed_every", reseed_every)
-        if isinstance(enrich, bool) or not isinstance(enrich, int | np.integer) or enrich < 0:
-            raise ValueError(f"enrich = {enrich!r}; allowed: an integer >= 0")
-        self.enrich = int(enrich)
+        self.enrich = _check_count("enrich", enrich)
         self.seeds = _check_positive_int("seeds", seeds)
-        self.seed_offset = _check_seed_offset(seed_offset)
-        if isinstance(archive, bool) or not isinstance(archive, int | np.integer) or archive < 0:
-            raise ValueError(f"archive = {archive!r}; allowed: an integer >= 0")
-        self.archive = int(archive)
+        self.seed_offset = _check_count("seed_offset", seed_offset)
+        self.archive = _check_count("archive", archive)
 
     def init(
         self,
@@ -180,7 +171,9 @@ class SerialSearch(AbstractSearcher):
         `(1 + enrich, seeds, climbers)`: the random set, then each enrichment round.
         """
         seeds = _check_positive_int("seeds", self.seeds if seeds is None else seeds)
-        seed_offset = _check_seed_offset(self.seed_offset if seed_offset is None else seed_offset)
+        seed_offset = _check_count(
+            "seed_offset", self.seed_offset if seed_offset is None else seed_offset
+        )
         if self.enrich and not hasattr(task.space, "reinitialise"):
             raise ValueError(
                 f"enrich = {self.enrich}: the {task.space.family!r} family has no relevance "
@@ -266,10 +259,9 @@ class SerialSearch(AbstractSearcher):
     def template(self, task: Task) -> SerialSearchState:
         x = jax.ShapeDtypeStruct((), jnp.float32)
         motion = x if type(task.space).uses_motion else None
-        if not self.archive:
-            return SerialSearchState(_population_shape(task), x, x, x, x, motion)
         population = _population_shape(task)
-        return SerialSearchState(population, x, x, x, x, motion, population, x)
+        archive = (population, x) if self.archive else (None, None)
+        return SerialSearchState(population, x, x, x, x, motion, *archive)
 
     def check_resume(self, state: SerialSearchState, history) -> None:
         _rounds(state, history, state.num_seeds, self.climbers)

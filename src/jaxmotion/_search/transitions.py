@@ -22,7 +22,7 @@ import jax.random as jr
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
-from .hill_climb import _check_positive_int
+from .hill_climb import _check_count, _check_positive_int
 from .history import History
 from .protocol import AbstractSearcher, SearchResult, drive
 from .serial import _reseeded
@@ -71,12 +71,6 @@ class TransitionSearchState(eqx.Module):
     round: Int[Array, ""]
     mutation: Int[Array, ""]
     evaluations: Int[Array, ""]
-
-
-def _check_count(name: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
-        raise ValueError(f"{name} = {value!r}; allowed: an integer >= 0")
-    return int(value)
 
 
 def _check_positive_number(name: str, value, unit: str) -> float:
