@@ -24,9 +24,16 @@ TIME_TOLERANCE = 1e-9  # s: the frame time against the save interval (written to
 DURATION = 0.3  # s: long enough for joints to reach their limits and the root to turn
 SAVE_DT = 0.02  # s
 # Free flight: the export does not care what moved the rods, and a world without a floor
-# compiles a sixth faster (seven figures compile in this file).
+# compiles a sixth faster.
 WORLD = jm.World(floor=False)
 FIGURES = ("star_man", "beryl_biped", "cujo", "rex", "bob", "snake", "luxo")
+# Each figure's flight is one more compilation (about 4 s): the fast suite exports a 3D
+# biped, the 15-rod Rex and a planar figure; `-m slow` the other four (the same writer on
+# other trees).
+FAST_FIGURES = ("star_man", "rex", "snake")
+FIGURE_PARAMS = [
+    name if name in FAST_FIGURES else pytest.param(name, marks=pytest.mark.slow) for name in FIGURES
+]
 
 
 def _start(figure, seed: int):
@@ -45,10 +52,11 @@ def _start(figure, seed: int):
     )
 
 
-@pytest.fixture(scope="module")
-def motions():
-    out = {}
-    for i, name in enumerate(FIGURES):
+class _Flights(dict):
+    """Each figure's free flight (the figure, its trajectory with positions), simulated
+    the first time a test asks for it."""
+
+    def __missing__(self, name):
         figure = getattr(figures, name)()
         trajectory = jm.simulate(
             figure,
@@ -56,11 +64,16 @@ def motions():
             WORLD,
             DURATION,
             save_dt=SAVE_DT,
-            initial_state=_start(figure, i),
+            initial_state=_start(figure, FIGURES.index(name)),
             positions=True,
         )
-        out[name] = (figure, trajectory)
-    return out
+        self[name] = (figure, trajectory)
+        return self[name]
+
+
+@pytest.fixture(scope="module")
+def motions():
+    return _Flights()
 
 
 def _quat_matrix(q) -> np.ndarray:
@@ -142,7 +155,7 @@ def _expected(figure, trajectory, frame: int):
     return {f"rod{k}": (points[p], points[d]) for k, (p, d) in enumerate(figure.rods)}
 
 
-@pytest.mark.parametrize("name", FIGURES)
+@pytest.mark.parametrize("name", FIGURE_PARAMS)
 def test_bvh_read_back_reproduces_every_rod_at_every_frame(motions, tmp_path, name):
     figure, trajectory = motions[name]
     assert bool(trajectory.finite)
@@ -173,7 +186,7 @@ def test_bvh_reader_hierarchy_agrees(motions, tmp_path, name):
     assert worst <= FK_TOLERANCE
 
 
-@pytest.mark.parametrize("name", FIGURES)
+@pytest.mark.parametrize("name", FIGURE_PARAMS)
 def test_bvh_channels_are_the_joints_degrees_of_freedom(motions, tmp_path, name):
     figure, trajectory = motions[name]
     path = jm.export.bvh(trajectory, figure, tmp_path / f"{name}.bvh")
@@ -281,7 +294,7 @@ def _check_stage(stage, num: int) -> None:
     assert stage.GetPrimAtPath("/World/floor").IsValid()
 
 
-@pytest.mark.parametrize("name", FIGURES)
+@pytest.mark.parametrize("name", FIGURE_PARAMS)
 def test_usd_world_transforms_put_every_rod_where_it_was(motions, tmp_path, name):
     figure, trajectory = motions[name]
     path = jm.export.usd(trajectory, figure, tmp_path / f"{name}.usda")

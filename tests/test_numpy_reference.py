@@ -23,7 +23,10 @@ WORLDS = {
 
 
 @pytest.mark.parametrize("world", list(WORLDS))
-@pytest.mark.parametrize("builder", [jm.lattices.cube, jm.lattices.chair])
+# The chair is the same model on another topology (three more compilations): `-m slow`.
+@pytest.mark.parametrize(
+    "builder", [jm.lattices.cube, pytest.param(jm.lattices.chair, marks=pytest.mark.slow)]
+)
 def test_agrees_with_the_numpy_model(builder, world, x64):
     task = jm.Task(
         builder(),
