@@ -381,6 +381,10 @@ def _start_ray(args):
                 f"{cpus} CPUs (--local-cpus)"
             )
         # address="local": always a Ray of our own, even where RAY_ADDRESS names a cluster.
+        # Its workers at the sweep's own priority: Ray starts them with niceness 15 (to keep
+        # its services responsive), and each task's search, their child, inherits it: on a
+        # machine doing anything else the searches got a few percent of a core (a sweep of
+        # two 9 s searches took 209 s beside two busy processes).
         with warnings.catch_warnings():
             # JAX warns at every fork once it has started (the configs were checked); Ray's
             # processes are forked and exec'd at once, which is safe.
@@ -391,6 +395,7 @@ def _start_ray(args):
                 include_dashboard=False,
                 log_to_driver=False,
                 logging_level="ERROR",
+                _system_config={"worker_niceness": 0},
             )
         return ray, f"a local Ray ({cpus} CPUs)"
     _check_reachable(args.address)
