@@ -30,6 +30,11 @@ def _task():
     )
 
 
+def _float64_task():
+    with jax.enable_x64(True):
+        return _task()
+
+
 def test_the_best_is_chosen_by_the_lower_of_its_two_fitnesses():
     task = _task()
     result = jm.parallel_hill_climb(task, key=jr.key(0), evaluations=48, size=16, batch=16)
@@ -48,6 +53,18 @@ def test_the_best_is_chosen_by_the_lower_of_its_two_fitnesses():
     assert measured["search_best_fitness"] == result.best_fitness
     for a, b in zip(jax.tree.leaves(picked.best), jax.tree.leaves(rows[chosen][2]), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # With a check, the chosen motion's accurate replay is checked, not replayed again.
+    seen = []
+
+    def check(trajectory):
+        seen.append(float(_float64_task().objective(trajectory)))
+        return jm.checks.CheckResult("probe", True, {"fitness": seen[-1]}, {"ran": True})
+
+    again, measured_checked = pick_accurate(task, result, 3, check)
+    assert again.best_fitness == picked.best_fitness
+    assert seen == [measured["accurate_fitness"]]  # one call, on the chosen motion
+    assert measured_checked["check"]["figures"] == {"fitness": seen[0]}
+    assert "check" not in measured
     # The accurate fitness is a float64 adaptive replay: a task built in float64 agrees.
     with jax.enable_x64(True):
         task64 = _task()

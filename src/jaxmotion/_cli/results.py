@@ -313,7 +313,8 @@ def _run_search(
     candidates = s.get("accurate_candidates", 0)
     if candidates:
         started = time.perf_counter()
-        result, timing["accurate"] = pick_accurate(experiment.task, result, candidates)
+        check = lambda trajectory: run_check(experiment, trajectory)
+        result, timing["accurate"] = pick_accurate(experiment.task, result, candidates, check)
         timing["accurate"]["seconds"] = round(time.perf_counter() - started, 3)
     return result, timing
 
@@ -338,7 +339,7 @@ def accurate_fitness(task: Task, controller: AbstractController) -> float:
     """The fitness of one controller's motion replayed accurately (`ACCURATE`: float64,
     Dopri5 at rtol 1e-8, atol 1e-10), from the task's own start; `-inf` if it blows up."""
     with jax.enable_x64(True):
-        return _accurate(_float64(task), controller)
+        return _accurate(_float64(task), controller)[0]
 
 
 def accurate_check(experiment: Experiment, controller: AbstractController):
@@ -349,14 +350,18 @@ def accurate_check(experiment: Experiment, controller: AbstractController):
         return run_check(experiment, trajectory)
 
 
-def _accurate(task64: Task, controller: AbstractController) -> float:
-    """`accurate_fitness` of a task already in float64 (inside `jax.enable_x64`)."""
+def _accurate(task64: Task, controller: AbstractController):
+    """`accurate_fitness` of a task already in float64 (inside `jax.enable_x64`), and the
+    trajectory it scored."""
     trajectory = task64.simulate(_float64(controller), **ACCURATE)
     fitness = float(task64.objective(trajectory))
-    return fitness if math.isfinite(fitness) and bool(trajectory.finite) else -math.inf
+    ok = math.isfinite(fitness) and bool(trajectory.finite)
+    return (fitness if ok else -math.inf), trajectory
 
 
-def pick_accurate(task: Task, result: SearchResult, k: int) -> tuple[SearchResult, dict]:
+def pick_accurate(
+    task: Task, result: SearchResult, k: int, check=None
+) -> tuple[SearchResult, dict]:
     """Choose the best controller among the `k` fittest of the search's final set
     (`jaxmotion.fittest`: hill climbing's set, serial search's archive of the fittest it held,
     evolution's population; evosax's best alone) by their accurate replay
@@ -364,17 +369,22 @@ def pick_accurate(task: Task, result: SearchResult, k: int) -> tuple[SearchResul
     accurate replay's) is highest, so that the motion an animator re-simulates with an
     accurate integrator is the motion the search found (a fixed step can reward an artefact
     of itself). Returns the result with that controller as its best (its fitness the
-    search's) and what was measured."""
+    search's) and what was measured; with `check` (a function of a trajectory returning a
+    `CheckResult` or `None`), also the check of the chosen motion's accurate replay
+    (`check`, as `accurate_check` gives it, without replaying it again)."""
     candidates, fitness = fittest(result, k)
     if not len(fitness):
         return result, {"candidates": 0}
+    rows, kept = [], None
     with jax.enable_x64(True):
         task64 = _float64(task)  # once: the conversion is not free
-        rows = [
-            (i, float(fitness[i]), _accurate(task64, _row(candidates, i)))
-            for i in range(len(fitness))
-        ]
-    chosen = max(rows, key=lambda r: min(r[1], r[2]))
+        for i in range(len(fitness)):
+            value, trajectory = _accurate(task64, _row(candidates, i))
+            rows.append((i, float(fitness[i]), value))
+            if kept is None or min(rows[-1][1:]) > min(rows[kept[0]][1:]):
+                kept = (i, trajectory)  # the first of the highest, as `max` picks
+        verdict = None if check is None else check(kept[1])
+    chosen = rows[kept[0]]
     measured = {
         "candidates": len(rows),
         "chosen_rank": chosen[0],
@@ -383,6 +393,8 @@ def pick_accurate(task: Task, result: SearchResult, k: int) -> tuple[SearchResul
         "search_best_fitness": _json_number(result.best_fitness),
         "search_best_accurate_fitness": _json_number(rows[0][2]),
     }
+    if verdict is not None:
+        measured["check"] = verdict.to_dict()
     best = _row(candidates, chosen[0])
     return dataclasses.replace(result, best=best, best_fitness=chosen[1]), measured
 
@@ -576,9 +588,6 @@ def _search_and_write(
     values = {k: float(v) for k, v in task.objective.values(trajectory).items()}
     check = run_check(experiment, trajectory)
     accurate = timing.get("accurate")
-    if accurate and accurate.get("candidates") and check is not None:
-        # The motion an animator re-simulates accurately, checked as the search's replay is.
-        accurate["check"] = accurate_check(experiment, best).to_dict()
     replay_fitness = fitness_of(task, best)
     per_run = None
     if len(runs) > 1:
