@@ -382,7 +382,7 @@ def pick_accurate(
             value, trajectory = _accurate(task64, _row(candidates, i))
             rows.append((i, float(fitness[i]), value))
             if kept is None or min(rows[-1][1:]) > min(rows[kept[0]][1:]):
-                kept = (i, trajectory)  # the first of the highest, as `max` picks
+                kept = (i, trajectory)  # ties: the first (the fittest by the search)
         verdict = None if check is None else check(kept[1])
     chosen = rows[kept[0]]
     measured = {
