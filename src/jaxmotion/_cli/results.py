@@ -375,16 +375,15 @@ def pick_accurate(
     candidates, fitness = fittest(result, k)
     if not len(fitness):
         return result, {"candidates": 0}
-    rows, kept = [], None
+    rows, chosen, kept = [], None, None
     with jax.enable_x64(True):
         task64 = _float64(task)  # once: the conversion is not free
         for i in range(len(fitness)):
             value, trajectory = _accurate(task64, _row(candidates, i))
             rows.append((i, float(fitness[i]), value))
-            if kept is None or min(rows[-1][1:]) > min(rows[kept[0]][1:]):
-                kept = (i, trajectory)  # ties: the first (the fittest by the search)
-        verdict = None if check is None else check(kept[1])
-    chosen = rows[kept[0]]
+            if chosen is None or min(rows[-1][1:]) > min(chosen[1:]):
+                chosen, kept = rows[-1], trajectory  # ties: the first, fittest by the search
+        verdict = None if check is None else check(kept)
     measured = {
         "candidates": len(rows),
         "chosen_rank": chosen[0],
