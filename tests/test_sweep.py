@@ -300,8 +300,9 @@ print(os.nice(0), ray.get(task.remote()))
 
 def test_a_local_rays_tasks_run_at_the_sweeps_own_priority():
     # Ray starts its workers with niceness 15 and a task's search (their child) inherits
-    # it: beside any other work the sweep's searches then crawled (the sweep test above took
-    # 267 s under a loaded suite against 64 s alone).
+    # it: beside any other work the sweep's searches then crawled
+    # (test_sweep_equals_runs_and_retries_a_killed_task took 267 s in a loaded suite against
+    # 64 s alone).
     done = subprocess.run(
         [sys.executable, "-c", NICENESS], capture_output=True, text=True, timeout=120
     )
