@@ -18,6 +18,8 @@ program names each loop's role from the JAX operation it came from:
 It prints each loop's time per step (microseconds, per device), then the `--top` most
 expensive kernels of the transposed step with their shapes and the operations they fuse.
 A short duration keeps the trace whole (the profiler drops events past about a million).
+Every kernel's trace event costs time of its own (about a microsecond), which distorts the
+short kernels of small batches: profile at B = 500 per device or more.
 Writes `benchmarks/profile_gradient.json`.
 """
 
@@ -28,6 +30,7 @@ import gzip
 import json
 import os
 import re
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -135,9 +138,13 @@ def main() -> None:
     jax.block_until_ready(run())
     jax.profiler.stop_trace()
     grid = time_grid(task.duration, task.dt, task.save_dt, task.control_dt)
-    roles, kernels = _program(_DUMP, grid.save_every, grid.num_saves)
-
-    events = json.load(gzip.open(glob.glob(f"{trace}/**/*.trace.json.gz", recursive=True)[0]))
+    try:
+        roles, kernels = _program(_DUMP, grid.save_every, grid.num_saves)
+        found = glob.glob(f"{trace}/**/*.trace.json.gz", recursive=True)
+        events = json.load(gzip.open(found[0]))
+    finally:  # the dump and the trace are large and of no use afterwards
+        shutil.rmtree(_DUMP, ignore_errors=True)
+        shutil.rmtree(trace, ignore_errors=True)
     events = [e for e in events["traceEvents"] if e.get("ph") == "X" and "dur" in e]
     steps = round(args.duration / task.dt) * jax.device_count()  # per device, summed
     loops = collections.defaultdict(float)
