@@ -35,23 +35,22 @@ import sys
 import tempfile
 from pathlib import Path
 
-# Before JAX starts: per-kernel trace events and a dump of the optimised program.
-_DUMP = tempfile.mkdtemp(prefix="jaxmotion-hlo-")
-os.environ["XLA_FLAGS"] = (
-    os.environ.get("XLA_FLAGS", "")
-    + f" --xla_cpu_enable_xprof_traceme=true --xla_dump_to={_DUMP}"
-    + " --xla_dump_hlo_as_text --xla_dump_hlo_pass_re=NONE"
-)
-os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"  # a cached program is not dumped
+if __name__ == "__main__":
+    # Before JAX starts: per-kernel trace events and a dump of the optimised program (only
+    # when run: importing this file for its parsers changes nothing).
+    _DUMP = tempfile.mkdtemp(prefix="jaxmotion-hlo-")
+    os.environ["XLA_FLAGS"] = (
+        os.environ.get("XLA_FLAGS", "")
+        + f" --xla_cpu_enable_xprof_traceme=true --xla_dump_to={_DUMP}"
+        + " --xla_dump_hlo_as_text --xla_dump_hlo_pass_re=NONE"
+    )
+    os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"  # a cached program is not dumped
 
-import jaxmotion as jm  # noqa: E402
+import jax
+import jax.random as jr
 
-jm.use_cpu_cores()
-
-import jax  # noqa: E402
-import jax.random as jr  # noqa: E402
-
-from jaxmotion._sim.simulate import time_grid  # noqa: E402
+import jaxmotion as jm
+from jaxmotion._sim.simulate import time_grid
 
 _INSTRUCTION = re.compile(r"\s+(?:ROOT )?%([\w.\-]+) = (\S+) ([\w\-]+)\(")
 _WHILE = re.compile(r"\s+(?:ROOT )?%([\w.\-]+) = \(.*\) while\(")
@@ -69,12 +68,11 @@ def _computations(text: str) -> dict[str, list[str]]:
     return comps
 
 
-def _program(dump: str, steps: int, intervals: int):
-    """The gradient's optimised program: each while loop's role (by name; `steps` is the
+def _program(text: str, steps: int, intervals: int):
+    """The gradient's optimised program (XLA's text dump): each while loop's role (by name; `steps` is the
     trip count of a save interval's loop over its steps, `intervals` that of the loop over
     the intervals) and each fusion's shape and the operations it fuses."""
-    path = max(glob.glob(f"{dump}/*jit__sharded*cpu_after_optimizations.txt"), key=os.path.getsize)
-    comps = _computations(Path(path).read_text())
+    comps = _computations(text)
     roles, kernels = {}, {}
     for lines in comps.values():
         for line in lines:
@@ -112,7 +110,41 @@ def _program(dump: str, steps: int, intervals: int):
     return roles, kernels
 
 
+def _attribute(events, roles: dict, kernels) -> tuple[dict, dict]:
+    """Sum a trace's complete events (`ph == "X"`) by loop and kernel: each loop's own time
+    by role (its duration less that of the loops run inside it), and each kernel's time by
+    the role of the innermost loop it ran in (kernels outside every loop are left out).
+    Events nest by time within a thread."""
+    loops = collections.defaultdict(float)
+    per_kernel = collections.defaultdict(lambda: collections.defaultdict(float))
+    by_thread = collections.defaultdict(list)
+    for e in events:
+        if e.get("ph") == "X" and "dur" in e:
+            by_thread[(e["pid"], e["tid"])].append(e)
+
+    def close(stack, until):
+        """Close the open loops that ended by `until`."""
+        while stack and stack[-1][0] <= until:
+            _, role, duration, nested = stack.pop()
+            loops[role] += duration - nested
+            if stack:
+                stack[-1][3] += duration
+
+    for thread in by_thread.values():
+        thread.sort(key=lambda e: (e["ts"], -e["dur"]))
+        stack: list = []  # open loops: [end, role, duration, nested loops' duration]
+        for e in thread:
+            close(stack, e["ts"])
+            if e["name"] in roles:
+                stack.append([e["ts"] + e["dur"], roles[e["name"]], e["dur"], 0.0])
+            elif e["name"] in kernels and stack:
+                per_kernel[stack[-1][1]][e["name"]] += e["dur"]
+        close(stack, float("inf"))
+    return dict(loops), {role: dict(k) for role, k in per_kernel.items()}
+
+
 def main() -> None:
+    jm.use_cpu_cores()
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -139,39 +171,16 @@ def main() -> None:
     jax.profiler.stop_trace()
     grid = time_grid(task.duration, task.dt, task.save_dt, task.control_dt)
     try:
-        roles, kernels = _program(_DUMP, grid.save_every, grid.num_saves)
+        dumped = glob.glob(f"{_DUMP}/*jit__sharded*cpu_after_optimizations.txt")
+        text = Path(max(dumped, key=os.path.getsize)).read_text()  # the gradient's program
+        roles, kernels = _program(text, grid.save_every, grid.num_saves)
         found = glob.glob(f"{trace}/**/*.trace.json.gz", recursive=True)
         events = json.load(gzip.open(found[0]))
     finally:  # the dump and the trace are large and of no use afterwards
         shutil.rmtree(_DUMP, ignore_errors=True)
         shutil.rmtree(trace, ignore_errors=True)
-    events = [e for e in events["traceEvents"] if e.get("ph") == "X" and "dur" in e]
+    loops, per_kernel = _attribute(events["traceEvents"], roles, kernels)
     steps = round(args.duration / task.dt) * jax.device_count()  # per device, summed
-    loops = collections.defaultdict(float)
-    per_kernel = collections.defaultdict(lambda: collections.defaultdict(float))
-    by_thread = collections.defaultdict(list)
-    for e in events:
-        by_thread[(e["pid"], e["tid"])].append(e)
-
-    def close(stack, until):
-        """Close the open loops that ended by `until`, counting each loop's own time."""
-        while stack and stack[-1][0] <= until:
-            _, role, duration, nested = stack.pop()
-            loops[role] += duration - nested  # not its inner loops' time
-            if stack:
-                stack[-1][3] += duration
-
-    for thread in by_thread.values():
-        thread.sort(key=lambda e: (e["ts"], -e["dur"]))
-        stack: list = []  # open loops: [end, role, duration, nested loops' duration]
-        for e in thread:
-            close(stack, e["ts"])
-            if e["name"] in roles:
-                stack.append([e["ts"] + e["dur"], roles[e["name"]], e["dur"], 0.0])
-            elif e["name"] in kernels and stack:
-                per_kernel[stack[-1][1]][e["name"]] += e["dur"]
-        close(stack, float("inf"))
-
     print(
         f"cube, B = {args.batch}, T = {args.duration:g} s, dt = 1 ms, "
         f"{jax.device_count()} devices: microseconds per step and device"
