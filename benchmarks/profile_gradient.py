@@ -69,9 +69,9 @@ def _computations(text: str) -> dict[str, list[str]]:
 
 
 def _program(text: str, steps: int, intervals: int):
-    """The gradient's optimised program (XLA's text dump): each while loop's role (by name; `steps` is the
-    trip count of a save interval's loop over its steps, `intervals` that of the loop over
-    the intervals) and each fusion's shape and the operations it fuses."""
+    """The gradient's optimised program (XLA's text dump): each while loop's role, by name
+    (`steps` is the trip count of a save interval's loop over its steps, `intervals` that of
+    the loop over the intervals), and each kernel's shape and the operations it fuses."""
     comps = _computations(text)
     roles, kernels = {}, {}
     for lines in comps.values():
@@ -164,13 +164,13 @@ def main() -> None:
     params = task.sample(args.batch, key=jr.key(0))
     smoothing = jm.Smoothing(regime_width=0.05, friction_velocity=0.1)
     run = lambda: jm.fitness_and_gradient(task, params, smoothing=smoothing)
-    jax.block_until_ready(run())  # compile
-    trace = tempfile.mkdtemp(prefix="jaxmotion-trace-")
-    jax.profiler.start_trace(trace, create_perfetto_trace=True)
-    jax.block_until_ready(run())
-    jax.profiler.stop_trace()
     grid = time_grid(task.duration, task.dt, task.save_dt, task.control_dt)
+    trace = tempfile.mkdtemp(prefix="jaxmotion-trace-")
     try:
+        jax.block_until_ready(run())  # compile
+        jax.profiler.start_trace(trace, create_perfetto_trace=True)
+        jax.block_until_ready(run())
+        jax.profiler.stop_trace()
         dumped = glob.glob(f"{_DUMP}/*jit__sharded*cpu_after_optimizations.txt")
         text = Path(max(dumped, key=os.path.getsize)).read_text()  # the gradient's program
         roles, kernels = _program(text, grid.save_every, grid.num_saves)
@@ -187,11 +187,10 @@ def main() -> None:
     )
     for role, total in sorted(loops.items(), key=lambda kv: -kv[1]):
         print(f"  {role:<28} {total / steps:8.1f}")
-    transposed = "transposed steps" if "transposed steps" in per_kernel else None
     rows = []
-    if transposed is not None:
+    if "transposed steps" in per_kernel:
         print(f"\nthe {args.top} most expensive kernels of the transposed step:")
-        ranked = sorted(per_kernel[transposed].items(), key=lambda kv: -kv[1])
+        ranked = sorted(per_kernel["transposed steps"].items(), key=lambda kv: -kv[1])
         for name, total in ranked[: args.top]:
             shape, ops = kernels[name]
             rows.append({"kernel": name, "shape": shape, "us": total / steps, "ops": ops})
