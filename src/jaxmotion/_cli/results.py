@@ -346,14 +346,19 @@ def accurate_check(experiment: Experiment, controller: AbstractController):
     """The experiment's check (`run_check`) on a controller's motion replayed accurately
     (`ACCURATE`), from the task's own start."""
     with jax.enable_x64(True):
-        trajectory = _float64(experiment.task).simulate(_float64(controller), **ACCURATE)
-        return run_check(experiment, trajectory)
+        return run_check(experiment, _accurate_replay(_float64(experiment.task), controller))
+
+
+def _accurate_replay(task64: Task, controller: AbstractController):
+    """A controller's motion replayed accurately on a task already in float64 (inside
+    `jax.enable_x64`)."""
+    return task64.simulate(_float64(controller), **ACCURATE)
 
 
 def _accurate(task64: Task, controller: AbstractController):
     """`accurate_fitness` of a task already in float64 (inside `jax.enable_x64`), and the
     trajectory it scored."""
-    trajectory = task64.simulate(_float64(controller), **ACCURATE)
+    trajectory = _accurate_replay(task64, controller)
     fitness = float(task64.objective(trajectory))
     ok = math.isfinite(fitness) and bool(trajectory.finite)
     return (fitness if ok else -math.inf), trajectory
