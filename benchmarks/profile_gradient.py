@@ -68,45 +68,45 @@ def _computations(text: str) -> dict[str, list[str]]:
     return comps
 
 
+def _role(line: str, steps: int, intervals: int) -> str:
+    """A while loop's role, from the JAX operation it came from and its trip count (`steps`
+    for a save interval's loop over its steps, `intervals` for the loop over intervals)."""
+    source = re.search(r'op_name="([^"]*)"', line)
+    source = source.group(1) if source else ""
+    trips = re.search(r'"n":"(\d+)"', line)
+    trips = int(trips.group(1)) if trips else 0
+    backward = "transpose(" in source
+    if trips == intervals and source.count("/while") == 1:
+        return "per interval, " + ("backward" if backward else "forward")
+    if backward:
+        role = "recompute" if "rematted_computation" in source else "transposed"
+    else:
+        role = "forward"
+    return role + (" steps" if trips == steps else f", inner loop of {trips}")
+
+
 def _program(text: str, steps: int, intervals: int):
     """The gradient's optimised program (XLA's text dump): each while loop's role, by name
-    (`steps` is the trip count of a save interval's loop over its steps, `intervals` that of
-    the loop over the intervals), and each kernel's shape and the operations it fuses."""
+    (`_role`), and each kernel's shape and the operations it fuses."""
     comps = _computations(text)
     roles, kernels = {}, {}
     for lines in comps.values():
         for line in lines:
             loop = _WHILE.match(line)
-            found = loop or _INSTRUCTION.match(line)
-            if not found:
+            if loop:
+                roles[loop.group(1)] = _role(line, steps, intervals)
                 continue
-            name, shape, op = (loop.group(1), "", "while") if loop else found.groups()
-            if op == "while":
-                source = re.search(r'op_name="([^"]*)"', line)
-                source = source.group(1) if source else ""
-                trips = re.search(r'"n":"(\d+)"', line)
-                trips = int(trips.group(1)) if trips else 0
-                backward = "transpose(" in source
-                if trips == intervals and source.count("/while") == 1:
-                    role = "per interval, " + ("backward" if backward else "forward")
-                else:
-                    role = (
-                        "recompute"
-                        if backward and "rematted_computation" in source
-                        else "transposed"
-                        if backward
-                        else "forward"
-                    )
-                    role += " steps" if trips == steps else f", inner loop of {trips}"
-                roles[name] = role
-            elif op in ("fusion", "dot", "copy"):
-                called = re.search(r"calls=%([\w.\-]+)", line)
-                ops = collections.Counter()
-                for inner_line in comps.get(called.group(1), []) if called else []:
-                    inner_op = _INSTRUCTION.match(inner_line)
-                    if inner_op and inner_op.group(3) not in ("parameter", "bitcast", "broadcast"):
-                        ops[inner_op.group(3)] += 1
-                kernels[name] = (shape.split("{")[0], dict(ops.most_common(6)))
+            found = _INSTRUCTION.match(line)
+            if not found or found.group(3) not in ("fusion", "dot", "copy"):
+                continue
+            name, shape, _ = found.groups()
+            called = re.search(r"calls=%([\w.\-]+)", line)
+            ops = collections.Counter()
+            for inner_line in comps.get(called.group(1), []) if called else []:
+                inner_op = _INSTRUCTION.match(inner_line)
+                if inner_op and inner_op.group(3) not in ("parameter", "bitcast", "broadcast"):
+                    ops[inner_op.group(3)] += 1
+            kernels[name] = (shape.split("{")[0], dict(ops.most_common(6)))
     return roles, kernels
 
 
