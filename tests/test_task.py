@@ -159,6 +159,17 @@ SHARDING_SCRIPT = textwrap.dedent(
     # small to split runs the one-device program on either).
     params = task.sample(41, key=jr.key(9))
     out[41] = np.asarray(task.evaluate(params)).tolist()
+    # A sense-based 3D figure with filtered senses (Bob's controller family): sharded over
+    # two devices, its program rounded differently from the one-device program, and places
+    # past the first 256 of a device's share differently again.
+    bob = jm.figures.bob()
+    world = jm.World(floor_stiffness=3.0e4, floor_damping=300.0, friction_velocity=0.1)
+    space = jm.SenseBSRSpace(bob, num_rules=10, tau_min=0.05, filter_time=0.05)
+    task = jm.Task(bob, world, space, jm.Objective({"forward": 1.0}), duration=0.3, dt=0.005)
+    params = task.sample(40, key=jr.key(3))
+    out["bob"] = np.asarray(task.evaluate(params)).tolist()
+    copies = jax.tree_util.tree_map(lambda a: np.repeat(np.asarray(a)[7:8], 40, axis=0), params)
+    out["bob_copies"] = np.asarray(task.evaluate(copies)).tolist()
     print(json.dumps(out))
     """
 )
@@ -172,10 +183,16 @@ def run_with_devices(n):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def test_sharding_over_two_devices_gives_identical_results():
+def test_two_devices_give_the_one_device_results_bitwise():
+    """A batch split over two CPU devices scores every controller exactly as one device
+    does, and a controller copied to every place of a split batch scores the same at each."""
     one, two = run_with_devices(1), run_with_devices(2)
     assert (one["devices"], two["devices"]) == (1, 2)
     assert one["41"] == two["41"]
+    assert one["bob"] == two["bob"]
+    assert len(set(one["bob"])) > 1  # the controllers differ, and so do their motions
+    for out in (one, two):
+        assert out["bob_copies"] == [out["bob"][7]] * 40
 
 
 def test_simulation_compiler_options_are_kept_only_if_xla_knows_them(monkeypatch):

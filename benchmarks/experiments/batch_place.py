@@ -1,12 +1,14 @@
 """Does a controller's fitness depend on its place in the batch, or on the number of CPU
-devices? (The README's "Known problem": sense-based Bob on two CPU devices.)
+devices? (`Task.evaluate` promises it does not; the README's "Fixed (2026-12-07): Bob on two
+CPU devices" tells how it did, for sense-based Bob, while batches were sharded with
+`shard_map`.)
 
 One controller sampled from a config's task is copied into batches of several widths and
-evaluated; each width prints the distinct fitnesses and the first place each occurs at.
-`Task.evaluate` promises one value for every width and place, whatever the device count.
+evaluated; each width prints the distinct fitnesses and the first place each occurs at:
+one value per width, the same with one device and with two.
 
-    python benchmarks/experiments/batch_place.py --devices 2   # Bob: two values at 500
-    python benchmarks/experiments/batch_place.py --devices 1   # one value, another one
+    python benchmarks/experiments/batch_place.py --devices 2   # Bob, two devices
+    python benchmarks/experiments/batch_place.py --devices 1   # the same values
 """
 
 import argparse

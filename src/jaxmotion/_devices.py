@@ -4,9 +4,11 @@ import os
 
 
 def use_cpu_cores(count: int | None = None) -> int:
-    """Make JAX expose one CPU device per core, so `Task.evaluate` shards its batch over all
-    of them (XLA runs each small simulation loop on one thread; two devices on two cores
-    nearly double throughput, see `perf-lab`).
+    """Make JAX expose one CPU device per core, so `Task.evaluate` splits its batch into as
+    many parts and runs them side by side, one thread each (XLA runs each small simulation
+    loop on the thread that calls it; two parts on two cores nearly double throughput, see
+    `perf-lab`). Every part runs through the same compiled program, so a controller's
+    fitness is bitwise the same whatever the count.
 
     Call it first thing in a notebook or script, before anything else uses JAX (the CLI does).
     It changes JAX's global configuration, which is the application's call: the library never

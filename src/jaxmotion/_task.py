@@ -124,12 +124,12 @@ class Task(eqx.Module):
     ) -> Float[Array, " batch"]:
         """Fitness (maximised) of a batch of controllers (leading batch axis on every array).
 
-        One compiled call simulates the whole batch, sharded over every device JAX sees; it is
-        compiled once per body structure, controller family and padded batch size (the
-        batch is padded to whole groups of 8 per device, at least 16: batches of 1 to 16
-        share one compilation), and reused by every later call with the same shapes
-        (`chunk`: evaluate in calls of this many
-        controllers, the last padded, to reuse the compilation of that size). A run that
+        One compiled program simulates the batch, split into one part per CPU device JAX
+        sees, the parts run side by side (`jaxmotion.use_cpu_cores`); it is compiled once
+        per body structure, controller family and padded part size (each part is padded to
+        whole groups of 8, at least 16: batches of 1 to 16 share one compilation), and
+        reused by every later call with the same shapes (`chunk`: evaluate in calls of this
+        many controllers, the last padded, to reuse the compilation of that size). A run that
         blows up gets fitness `-inf` (the worst) rather than raising or returning NaN;
         count them with `jnp.isneginf(fitness)`.
 

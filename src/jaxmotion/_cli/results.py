@@ -677,8 +677,8 @@ def start_where(stage: Experiment, previous: Trajectory | BodyState | None) -> E
                 "start_where needs a trajectory with its final state (Trajectory.final)"
             )
         previous = previous.final.body
-    # A copy of the values alone (bitwise): a state that comes out of a sharded call keeps
-    # its sharding, and a task holding it would compile its simulations again.
+    # A copy of the values alone (bitwise): a state that comes out of a compiled call stays
+    # committed to its device, and a task holding it would compile its simulations again.
     previous = jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)), previous)
     # Every other setting of the task is kept (robustness, second_dt, ...).
     started = dataclasses.replace(stage.task, initial_state=previous)

@@ -13,7 +13,7 @@ from .._body.base import AbstractBody
 
 class ControllerState(NamedTuple):
     """What a controller carries through a simulation, part of the simulation state (so it
-    is batched, sharded and continued with the body's).
+    is batched, split and continued with the body's).
 
     - `discrete`: a pytree that changes only at control ticks (`AbstractController.update`):
         the active regime or rule, low-pass-filtered senses, a sequence's phase. `None` if

@@ -10,7 +10,7 @@ functions on a state pytree that holds everything a resume needs:
     what `begin` needs besides their fitness), the evaluation, then `begin` (pure,
     jittable: the state), so a caller with an evaluation of its own can run a whole search
     from pure functions; the evaluation itself is outside them because `task.evaluate` is
-    a compiled, sharded call of its own (serial search then makes its `enrich` rounds);
+    a compiled, parallel call of its own (serial search then makes its `enrich` rounds);
 - `ask(task, state) -> candidates`: what to evaluate next (jitted, pure);
 - `evaluate(task, state, candidates) -> (fitness, extras)`: the driver's one call to the
     simulator per step (the searcher chooses the random starts of a robust task, the chunking,

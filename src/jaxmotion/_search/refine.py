@@ -117,7 +117,7 @@ def _local_gradients(args, params):
 
 def _value_and_grad(task: Task, params, spec, smoothing: Smoothing, gradient_from=None):
     """Smoothed fitness and its gradient for every controller (leading batch axis), laid
-    out as `Task.evaluate` lays out a batch (split over the devices, each share whole lane
+    out as `Task.evaluate` lays out a batch (in parts, one per device, each whole lane
     groups), through the simulation's reverse-mode layout (`simulate_batch(...,
     reverse_mode=True)`: a scan of checkpointed save intervals); `gradient_from` (s) holds
     the motion before it constant."""
@@ -202,7 +202,7 @@ def fitness_and_gradient(
 def _prepared(task: Task, params):
     """The batch placed as `Task.evaluate` places it, and the family's trainable spec."""
     execution.batch_size(params)
-    params = execution.replicated(params)
+    params = execution.placed(params)
     return params, task.space.trainable(jax.tree_util.tree_map(lambda a: a[0], params))
 
 
