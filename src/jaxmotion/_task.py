@@ -136,7 +136,10 @@ class Task(eqx.Module):
         Results are bitwise reproducible: the same batch gives the same fitness every time,
         whatever the number of devices, and a controller's fitness depends neither on its
         place in the batch nor on the size of the batch it comes in (so a search's best
-        controller replays alone to the very fitness the search recorded). Batches under 16
+        controller replays alone to the very fitness the search recorded), with one
+        exception measured so far: for the 2D figures and Rex, parts of a batch of 176 to 264
+        controllers and more (calls of 350-530 and more on two devices) may round differently
+        (the README's "Known problem: wide parts of some figures"). Batches under 16
         are padded to 16, which is why they cost about as much as 16.
 
         With `robustness`, every controller is simulated from `robustness.samples` random

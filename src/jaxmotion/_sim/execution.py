@@ -35,7 +35,9 @@ CHUNK = 500
 # contact-rich motion amplifies, and batches shorter than 16 compile to different code
 # again. Every part is therefore at least `MIN_SHARE` and a whole number of `LANES` groups:
 # a controller's result is then bitwise the same whatever the batch it comes in and the
-# number of workers (with the compiler options of `jaxmotion._sim.compile`).
+# number of workers (with the compiler options of `jaxmotion._sim.compile`), except that
+# XLA rounds some figures differently in wider parts (2D figures from 176 or 264, Rex from
+# 264 controllers a part: the README's "Known problem: wide parts of some figures").
 #
 # A part that is a power of two from `SLOW_POWER` up gets one more group: the state's
 # component arrays then sit at power-of-two strides and evict each other from the cache.
