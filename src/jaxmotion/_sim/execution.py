@@ -94,7 +94,7 @@ def placed(tree, device=None):
     each kind would compile again."""
     device = jax.devices()[0] if device is None else device
     dynamic, static = eqx.partition(tree, eqx.is_array)
-    if any(isinstance(a, jax.core.Tracer) for a in jax.tree_util.tree_leaves(dynamic)):
+    if _traced(dynamic):
         return tree
     return eqx.combine(jax.device_put(dynamic, device), static)
 
@@ -125,12 +125,6 @@ def _parts(size: int, parallel: bool) -> int:
     splitting buys little, stay whole)."""
     n = workers()
     return n if parallel and n > 1 and size >= MIN_SHARE * n else 1
-
-
-def laid_out(batch: int, parallel: bool = True) -> int:
-    """The size a call of `batch` controllers is padded to: each part padded by `share`."""
-    parts = _parts(batch, parallel)
-    return share(-(-batch // parts)) * parts
 
 
 @functools.cache
@@ -178,8 +172,9 @@ def run(fn: Callable, args, params, *, chunk: int | None = None, parallel: bool 
         outs = [compiled(args, p) for p in pieces]
     else:
         devices = _devices(count)
+        placed_args = {d: placed(args, d) for d in set(devices)}  # once per device
         calls = [
-            functools.partial(compiled, placed(args, d), placed(p, d))
+            functools.partial(compiled, placed_args[d], placed(p, d))
             for p, d in zip(pieces, devices, strict=True)
         ]
         threads = workers() if parallel else 1
@@ -188,7 +183,8 @@ def run(fn: Callable, args, params, *, chunk: int | None = None, parallel: bool 
         else:
             # Each thread waits for its part, so that the parts really run side by side.
             outs = list(_pool(threads).map(lambda call: jax.block_until_ready(call()), calls))
-        outs = [placed(out) for out in outs]  # one device, to be joined
+        if len(placed_args) > 1:  # parts on several accelerators: one device, to be joined
+            outs = [placed(out) for out in outs]
     outs = [jax.tree_util.tree_map(lambda a: a[:piece], out) for out in outs]
     if count == 1:
         return jax.tree_util.tree_map(lambda a: a[:batch], outs[0])
