@@ -12,6 +12,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from .._control.base import AbstractController
+from .._sim import execution
 from .._task import Task
 from .hill_climb import (
     _check_positive_int,
@@ -27,10 +28,10 @@ from .history import History
 from .protocol import AbstractSearcher, SearchResult, drive, register
 from .serial import _select
 
-# Controllers per device in one compiled call. Above about 200 per device (measured on the
-# snake and the Luxo lamp, 2 devices, with spring nets and with `TimeBSR` alike: 160 per
-# device bitwise equal to 8, 240 not) XLA's CPU code rounds a figure's step differently, and
-# a search's best then replayed alone to another motion than the one it was scored for. The
+# Controllers per part (one part per device) in one compiled call. Above about 200 per device
+# (measured on the snake and the Luxo lamp, 2 devices, with spring nets and with `TimeBSR` alike:
+# 160 per device bitwise equal to 8, 240 not) XLA's CPU code rounds a figure's step differently,
+# and a search's best then replayed alone to another motion than the one it was scored for. The
 # generations therefore run in calls of this many per device (measured on the snake: 8,956
 # evaluations/s against 11,563/s in one call of 1,600).
 SHARE = 160
@@ -114,7 +115,7 @@ class Evolve(AbstractSearcher):
     def chunk(self) -> int:
         """The controllers of one compiled call: a generation's `4 size / 5`, or `SHARE`
         per device if fewer (the first generation runs in calls of the same size)."""
-        return min(self.batch, SHARE * len(jax.devices()))
+        return min(self.batch, SHARE * execution.workers())
 
     @property
     def batch(self) -> int:
